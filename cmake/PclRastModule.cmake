@@ -1,0 +1,35 @@
+# pcl_rast_add_module(<name> [DEPS <modules...>] [LIBS <libraries...>])
+#
+# Builds library pcl_rast_<name> from <name>/src/*.cpp with public headers in
+# <name>/include/pcl/<name>/, exports it as pcl_rast::<name> and installs it.
+# Sources are globbed (CONFIGURE_DEPENDS) so that adding a unit is one new file.
+function(pcl_rast_add_module name)
+  cmake_parse_arguments(ARG "" "" "DEPS;LIBS" ${ARGN})
+  file(GLOB srcs CONFIGURE_DEPENDS "${CMAKE_CURRENT_SOURCE_DIR}/src/*.cpp")
+  set(target pcl_rast_${name})
+  if(NOT srcs)
+    # A module still without sources (only headers so far) builds from an empty unit.
+    set(srcs "${CMAKE_CURRENT_BINARY_DIR}/${target}_empty.cpp")
+    file(WRITE "${srcs}" "// ${target} has no compiled sources yet.\n")
+  endif()
+  add_library(${target} ${srcs})
+  add_library(pcl_rast::${name} ALIAS ${target})
+  set_target_properties(${target} PROPERTIES EXPORT_NAME ${name}
+                        VERSION ${PROJECT_VERSION} SOVERSION ${PROJECT_VERSION_MAJOR}.${PROJECT_VERSION_MINOR})
+  target_include_directories(${target} PUBLIC
+    $<BUILD_INTERFACE:${CMAKE_CURRENT_SOURCE_DIR}/include>
+    $<INSTALL_INTERFACE:${PCL_RAST_INCLUDE_INSTALL_DIR}>)
+  target_include_directories(${target} SYSTEM PUBLIC ${PCL_INCLUDE_DIRS})
+  target_compile_definitions(${target} PUBLIC ${PCL_DEFINITIONS})
+  foreach(dep IN LISTS ARG_DEPS)
+    target_link_libraries(${target} PUBLIC pcl_rast_${dep})
+  endforeach()
+  # ${PCL_LIBRARIES}, not single pcl_* targets: those lack their inter-module deps.
+  target_link_libraries(${target} PUBLIC ${PCL_LIBRARIES} Eigen3::Eigen ${ARG_LIBS})
+  target_compile_options(${target} PRIVATE -Wall -Wextra -Wno-unused-parameter)
+  install(TARGETS ${target} EXPORT pcl_rastTargets
+          LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}
+          ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}
+          RUNTIME DESTINATION ${CMAKE_INSTALL_BINDIR})
+  install(DIRECTORY include/ DESTINATION ${PCL_RAST_INCLUDE_INSTALL_DIR})
+endfunction()
