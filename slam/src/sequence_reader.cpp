@@ -1,0 +1,653 @@
+/// \file sequence_reader.cpp
+/// \brief Streaming scan-sequence reader: folder listing, ordering, times.txt and
+/// the per-format scan readers.
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <pcl/PCLPointCloud2.h>
+#include <pcl/io/pcd_io.h>
+#include <pcl/io/ply_io.h>
+#include <pcl/slam/sequence_reader.h>
+#include <sstream>
+#include <system_error>
+
+namespace fs = std::filesystem;
+
+namespace pcl {
+namespace rast {
+namespace {
+
+constexpr std::size_t kKittiPointBytes = 4 * sizeof(float);
+
+std::string
+lowerExtension(const fs::path& p)
+{
+  std::string ext = p.extension().string();
+  for (char& c : ext)
+    c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return ext;
+}
+
+bool
+isScanExtension(const std::string& ext)
+{
+  return ext == ".bin" || ext == ".pcd" || ext == ".ply";
+}
+
+/// Append a point when all four values are finite; otherwise count it as dropped.
+inline void
+pushIfFinite(pcl::PointCloud<pcl::PointXYZI>& cloud,
+             float x,
+             float y,
+             float z,
+             float intensity,
+             std::size_t& num_dropped)
+{
+  if (std::isfinite(x) && std::isfinite(y) && std::isfinite(z) &&
+      std::isfinite(intensity)) {
+    pcl::PointXYZI p;
+    p.x = x;
+    p.y = y;
+    p.z = z;
+    p.intensity = intensity;
+    cloud.push_back(p);
+  } else {
+    ++num_dropped;
+  }
+}
+
+/// Fail early with a clear reason when the path is not a readable, non-empty file.
+std::uintmax_t
+checkRegularNonEmptyFile(const std::string& path)
+{
+  std::error_code ec;
+  const fs::file_status status = fs::status(path, ec);
+  if (ec || !fs::exists(status))
+    throw ScanReadError(path, "file does not exist");
+  if (fs::is_directory(status))
+    throw ScanReadError(path, "cannot read scan: is a directory, not a file");
+  const std::uintmax_t size = fs::file_size(path, ec);
+  if (ec)
+    throw ScanReadError(path, "cannot read scan: " + ec.message());
+  if (size == 0)
+    throw ScanReadError(path, "empty file (0 bytes)");
+  std::ifstream probe(path, std::ios::binary);
+  if (!probe)
+    throw ScanReadError(path, "cannot open file for reading (permission denied?)");
+  return size;
+}
+
+/// KITTI .bin: one read of the whole file into a float buffer, then one pass.
+void
+readKittiBin(const std::string& path,
+             std::uintmax_t size_bytes,
+             pcl::PointCloud<pcl::PointXYZI>& cloud,
+             std::size_t& num_dropped)
+{
+  if (size_bytes % kKittiPointBytes != 0)
+    throw ScanReadError(path,
+                        "truncated KITTI .bin: size " + std::to_string(size_bytes) +
+                            " bytes is not a multiple of 16 (float32 x y z intensity)");
+  const std::size_t num_points = static_cast<std::size_t>(size_bytes / kKittiPointBytes);
+  std::vector<float> buffer(num_points * 4);
+  std::ifstream in(path, std::ios::binary);
+  if (!in)
+    throw ScanReadError(path, "cannot open file for reading");
+  in.read(reinterpret_cast<char*>(buffer.data()),
+          static_cast<std::streamsize>(num_points * kKittiPointBytes));
+  if (in.gcount() != static_cast<std::streamsize>(num_points * kKittiPointBytes))
+    throw ScanReadError(path,
+                        "read only " + std::to_string(in.gcount()) + " of " +
+                            std::to_string(size_bytes) + " bytes");
+  cloud.reserve(num_points);
+  for (std::size_t i = 0; i < num_points; ++i) {
+    const float* v = &buffer[4 * i];
+    pushIfFinite(cloud, v[0], v[1], v[2], v[3], num_dropped);
+  }
+}
+
+/// Read one value of any PCLPointField numeric type as float.
+inline float
+fieldAsFloat(const std::uint8_t* p, std::uint8_t datatype)
+{
+  switch (datatype) {
+  case pcl::PCLPointField::INT8: {
+    std::int8_t v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
+  }
+  case pcl::PCLPointField::UINT8:
+    return *p;
+  case pcl::PCLPointField::INT16: {
+    std::int16_t v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
+  }
+  case pcl::PCLPointField::UINT16: {
+    std::uint16_t v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
+  }
+  case pcl::PCLPointField::INT32: {
+    std::int32_t v;
+    std::memcpy(&v, p, sizeof v);
+    return static_cast<float>(v);
+  }
+  case pcl::PCLPointField::UINT32: {
+    std::uint32_t v;
+    std::memcpy(&v, p, sizeof v);
+    return static_cast<float>(v);
+  }
+  case pcl::PCLPointField::INT64: {
+    std::int64_t v;
+    std::memcpy(&v, p, sizeof v);
+    return static_cast<float>(v);
+  }
+  case pcl::PCLPointField::UINT64: {
+    std::uint64_t v;
+    std::memcpy(&v, p, sizeof v);
+    return static_cast<float>(v);
+  }
+  case pcl::PCLPointField::FLOAT32: {
+    float v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
+  }
+  case pcl::PCLPointField::FLOAT64: {
+    double v;
+    std::memcpy(&v, p, sizeof v);
+    return static_cast<float>(v);
+  }
+  default:
+    return std::numeric_limits<float>::quiet_NaN();
+  }
+}
+
+const pcl::PCLPointField*
+findField(const pcl::PCLPointCloud2& blob, const std::vector<std::string>& names)
+{
+  for (const std::string& name : names)
+    for (const pcl::PCLPointField& f : blob.fields)
+      if (f.name == name)
+        return &f;
+  return nullptr;
+}
+
+/// Convert a PCD/PLY blob to x y z intensity, whatever the field types are.
+void
+blobToCloud(const std::string& path,
+            const pcl::PCLPointCloud2& blob,
+            pcl::PointCloud<pcl::PointXYZI>& cloud,
+            std::size_t& num_dropped)
+{
+  const pcl::PCLPointField* fx = findField(blob, {"x"});
+  const pcl::PCLPointField* fy = findField(blob, {"y"});
+  const pcl::PCLPointField* fz = findField(blob, {"z"});
+  if (!fx || !fy || !fz)
+    throw ScanReadError(path, "no x, y and z fields");
+  const pcl::PCLPointField* fi = findField(
+      blob,
+      {"intensity", "scalar_intensity", "reflectance", "remission", "i", "Intensity"});
+
+  const std::size_t num_points = static_cast<std::size_t>(blob.width) * blob.height;
+  for (const pcl::PCLPointField* f : {fx, fy, fz, fi}) {
+    if (!f)
+      continue;
+    const std::size_t size = pcl::getFieldSize(f->datatype);
+    if (size == 0 || f->offset + size > blob.point_step)
+      throw ScanReadError(path,
+                          "field '" + f->name + "' has an unsupported type or layout");
+  }
+  if (blob.height > 0 &&
+      (blob.row_step < static_cast<std::size_t>(blob.width) * blob.point_step ||
+       blob.data.size() < static_cast<std::size_t>(blob.row_step) * blob.height))
+    throw ScanReadError(path, "point data is shorter than the header says");
+
+  cloud.reserve(num_points);
+  for (std::size_t r = 0; r < blob.height; ++r) {
+    const std::uint8_t* row = blob.data.data() + r * blob.row_step;
+    for (std::size_t c = 0; c < blob.width; ++c) {
+      const std::uint8_t* pt = row + c * blob.point_step;
+      const float intensity = fi ? fieldAsFloat(pt + fi->offset, fi->datatype) : 0.0f;
+      pushIfFinite(cloud,
+                   fieldAsFloat(pt + fx->offset, fx->datatype),
+                   fieldAsFloat(pt + fy->offset, fy->datatype),
+                   fieldAsFloat(pt + fz->offset, fz->datatype),
+                   intensity,
+                   num_dropped);
+    }
+  }
+}
+
+/// The whole file in memory, read with one call.
+std::string
+readWholeFile(const std::string& path, std::uintmax_t size_bytes)
+{
+  std::string bytes(static_cast<std::size_t>(size_bytes), '\0');
+  std::ifstream in(path, std::ios::binary);
+  if (!in)
+    throw ScanReadError(path, "cannot open file for reading");
+  in.read(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  if (in.gcount() != static_cast<std::streamsize>(bytes.size()))
+    throw ScanReadError(path,
+                        "read only " + std::to_string(in.gcount()) + " of " +
+                            std::to_string(size_bytes) + " bytes");
+  return bytes;
+}
+
+/// PCD (ascii, binary, binary_compressed). The header and the data sizes are
+/// checked here before PCL parses the body: pcl::PCDReader::read crashes on some
+/// malformed files instead of reporting an error.
+void
+readPcd(const std::string& path, std::uintmax_t size_bytes, pcl::PCLPointCloud2& blob)
+{
+  const std::string bytes = readWholeFile(path, size_bytes);
+  std::istringstream stream(bytes);
+  pcl::PCDReader reader;
+  Eigen::Vector4f origin;
+  Eigen::Quaternionf orientation;
+  int version = 0;
+  int data_type = 0;
+  unsigned int data_idx = 0;
+  if (reader.readHeader(stream, blob, origin, orientation, version, data_type, data_idx) <
+          0 ||
+      blob.fields.empty() || blob.point_step == 0)
+    throw ScanReadError(path, "cannot parse .pcd file: invalid header (no FIELDS?)");
+  if (!findField(blob, {"x"}) || !findField(blob, {"y"}) || !findField(blob, {"z"}))
+    throw ScanReadError(path, "no x, y and z fields");
+  const std::uint64_t num_points = static_cast<std::uint64_t>(blob.width) * blob.height;
+  if (num_points == 0) {
+    blob.data.clear();
+    return;
+  }
+  if (data_idx > bytes.size())
+    throw ScanReadError(path,
+                        "cannot parse .pcd file: header runs past the end of the file");
+  const std::uint64_t available = bytes.size() - data_idx;
+  int status = -1;
+  if (data_type == 0) {
+    stream.clear();
+    stream.seekg(data_idx);
+    status = reader.readBodyASCII(stream, blob, version);
+  } else {
+    if (data_type == 1 && available < num_points * blob.point_step)
+      throw ScanReadError(path,
+                          "truncated binary .pcd: " + std::to_string(available) +
+                              " data bytes for " + std::to_string(num_points) +
+                              " points of " + std::to_string(blob.point_step) + " bytes");
+    if (data_type == 2) {
+      std::uint32_t compressed_size = 0;
+      if (available >= 8)
+        std::memcpy(&compressed_size, bytes.data() + data_idx, sizeof compressed_size);
+      if (available < 8 || available - 8 < compressed_size)
+        throw ScanReadError(path,
+                            "truncated binary_compressed .pcd: " +
+                                std::to_string(available) + " data bytes");
+    }
+    status = reader.readBodyBinary(reinterpret_cast<const unsigned char*>(bytes.data()),
+                                   blob,
+                                   version,
+                                   data_type == 2,
+                                   data_idx);
+  }
+  if (status < 0)
+    throw ScanReadError(path, "cannot parse .pcd file: malformed point data");
+}
+
+/// Load a PCD or PLY file and convert it.
+void
+readPclFile(const std::string& path,
+            const std::string& ext,
+            std::uintmax_t size_bytes,
+            pcl::PointCloud<pcl::PointXYZI>& cloud,
+            std::size_t& num_dropped)
+{
+  pcl::PCLPointCloud2 blob;
+  try {
+    if (ext == ".pcd") {
+      readPcd(path, size_bytes, blob);
+    } else if (pcl::io::loadPLYFile(path, blob) < 0) {
+      throw ScanReadError(path, "cannot parse .ply file");
+    }
+  } catch (const ScanReadError&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw ScanReadError(path, "cannot parse " + ext + " file: " + e.what());
+  }
+  blobToCloud(path, blob, cloud, num_dropped);
+}
+
+/// Parse the digits of the last run of digits in \a stem; empty when there is none.
+std::string
+lastDigitRun(const std::string& stem)
+{
+  std::size_t end = stem.size();
+  while (end > 0 && !std::isdigit(static_cast<unsigned char>(stem[end - 1])))
+    --end;
+  std::size_t begin = end;
+  while (begin > 0 && std::isdigit(static_cast<unsigned char>(stem[begin - 1])))
+    --begin;
+  std::string digits = stem.substr(begin, end - begin);
+  // Strip leading zeros so that numbers compare by (length, digits) without overflow.
+  const std::size_t nz = digits.find_first_not_of('0');
+  return nz == std::string::npos ? (digits.empty() ? digits : "0") : digits.substr(nz);
+}
+
+/// Sort by the numeric index in the file name when every name has one, else by name.
+void
+sortScans(std::vector<fs::path>& scans)
+{
+  std::vector<std::string> keys;
+  keys.reserve(scans.size());
+  bool all_numeric = true;
+  for (const fs::path& p : scans) {
+    keys.push_back(lastDigitRun(p.stem().string()));
+    all_numeric = all_numeric && !keys.back().empty();
+  }
+  std::vector<std::size_t> order(scans.size());
+  for (std::size_t i = 0; i < order.size(); ++i)
+    order[i] = i;
+  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) {
+    if (all_numeric) {
+      const std::string& ka = keys[a];
+      const std::string& kb = keys[b];
+      if (ka.size() != kb.size())
+        return ka.size() < kb.size();
+      if (ka != kb)
+        return ka < kb;
+    }
+    return scans[a].filename().string() < scans[b].filename().string();
+  });
+  std::vector<fs::path> sorted;
+  sorted.reserve(scans.size());
+  for (std::size_t i : order)
+    sorted.push_back(scans[i]);
+  scans.swap(sorted);
+}
+
+/// Scan files directly in \a folder, and the distinct extensions found.
+std::vector<fs::path>
+listScans(const fs::path& folder, std::map<std::string, std::string>& ext_examples)
+{
+  std::vector<fs::path> scans;
+  std::error_code ec;
+  for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
+    const fs::path& p = it->path();
+    const std::string ext = lowerExtension(p);
+    if (!isScanExtension(ext) || p.filename().string().front() == '.')
+      continue;
+    scans.push_back(p);
+    ext_examples.emplace(ext, p.filename().string());
+  }
+  if (ec)
+    throw std::runtime_error("SequenceReader: cannot list folder '" + folder.string() +
+                             "': " + ec.message());
+  return scans;
+}
+
+/// Read times.txt: one number per non-empty line.
+std::vector<double>
+readTimes(const std::string& path)
+{
+  std::ifstream in(path);
+  if (!in)
+    throw std::runtime_error("SequenceReader: cannot open '" + path + "'");
+  std::vector<double> times;
+  std::string line;
+  std::size_t line_no = 0;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (line.find_first_not_of(" \t\r") == std::string::npos)
+      continue;
+    std::istringstream ss(line);
+    double t = 0.0;
+    std::string rest;
+    if (!(ss >> t) || (ss >> rest) || !std::isfinite(t))
+      throw std::runtime_error("SequenceReader: '" + path + "' line " +
+                               std::to_string(line_no) +
+                               ": expected one time in seconds, got '" + line + "'");
+    times.push_back(t);
+  }
+  return times;
+}
+
+/// Write a file atomically: temporary file in the same folder, then rename.
+void
+writeBytesAtomically(const std::string& path, const char* data, std::size_t size)
+{
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    if (!out)
+      throw std::runtime_error("writeKittiBin: cannot open '" + tmp + "' for writing");
+    out.write(data, static_cast<std::streamsize>(size));
+    out.flush();
+    if (!out) {
+      out.close();
+      std::remove(tmp.c_str());
+      throw std::runtime_error("writeKittiBin: writing '" + tmp + "' failed");
+    }
+  }
+  std::error_code ec;
+  fs::rename(tmp, path, ec);
+  if (ec) {
+    std::remove(tmp.c_str());
+    throw std::runtime_error("writeKittiBin: cannot rename '" + tmp + "' to '" + path +
+                             "': " + ec.message());
+  }
+}
+
+} // namespace
+
+pcl::PointCloud<pcl::PointXYZI>::Ptr
+readScan(const std::string& path, std::size_t* num_dropped_non_finite)
+{
+  const std::string ext = lowerExtension(path);
+  if (!isScanExtension(ext))
+    throw ScanReadError(
+        path, "unsupported scan extension '" + ext + "' (expected .bin, .pcd or .ply)");
+  const std::uintmax_t size_bytes = checkRegularNonEmptyFile(path);
+
+  auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+  std::size_t num_dropped = 0;
+  if (ext == ".bin")
+    readKittiBin(path, size_bytes, *cloud, num_dropped);
+  else
+    readPclFile(path, ext, size_bytes, *cloud, num_dropped);
+  cloud->width = static_cast<std::uint32_t>(cloud->size());
+  cloud->height = 1;
+  cloud->is_dense = true;
+  if (num_dropped_non_finite)
+    *num_dropped_non_finite = num_dropped;
+  return cloud;
+}
+
+void
+writeKittiBin(const std::string& path, const pcl::PointCloud<pcl::PointXYZI>& cloud)
+{
+  std::vector<float> buffer;
+  buffer.reserve(cloud.size() * 4);
+  for (const pcl::PointXYZI& p : cloud) {
+    buffer.push_back(p.x);
+    buffer.push_back(p.y);
+    buffer.push_back(p.z);
+    buffer.push_back(p.intensity);
+  }
+  writeBytesAtomically(
+      path, reinterpret_cast<const char*>(buffer.data()), buffer.size() * sizeof(float));
+}
+
+bool
+SequenceReaderOptions::isValid(std::string* why) const
+{
+  auto fail = [why](const std::string& reason) {
+    if (why)
+      *why = reason;
+    return false;
+  };
+  if (stride < 1)
+    return fail("stride must be >= 1, got 0");
+  if (last < -1)
+    return fail("last must be >= -1 (-1 = to the end), got " + std::to_string(last));
+  if (last >= 0 && static_cast<std::uint64_t>(last) < first)
+    return fail("last (" + std::to_string(last) + ") must be >= first (" +
+                std::to_string(first) + ")");
+  return true;
+}
+
+SequenceReader::SequenceReader(const std::string& folder,
+                               const SequenceReaderOptions& options)
+{
+  std::string why;
+  if (!options.isValid(&why))
+    throw std::invalid_argument("SequenceReader: invalid options: " + why);
+
+  std::error_code ec;
+  if (!fs::exists(folder, ec))
+    throw std::invalid_argument("SequenceReader: folder '" + folder + "' does not exist");
+  if (!fs::is_directory(folder, ec))
+    throw std::invalid_argument("SequenceReader: '" + folder + "' is not a folder");
+
+  // The folder itself, else the one of velodyne/, pcd/, ply/ that holds scans.
+  fs::path scan_folder = folder;
+  std::map<std::string, std::string> ext_examples;
+  std::vector<fs::path> scans = listScans(scan_folder, ext_examples);
+  if (scans.empty()) {
+    for (const char* sub : {"velodyne", "pcd", "ply"}) {
+      const fs::path candidate = fs::path(folder) / sub;
+      if (!fs::is_directory(candidate, ec))
+        continue;
+      std::map<std::string, std::string> sub_examples;
+      std::vector<fs::path> sub_scans = listScans(candidate, sub_examples);
+      if (sub_scans.empty())
+        continue;
+      if (!scans.empty())
+        throw std::invalid_argument("SequenceReader: folder '" + folder +
+                                    "' has scans in both '" + scan_folder.string() +
+                                    "' and '" + candidate.string() +
+                                    "': pass one of them");
+      scan_folder = candidate;
+      scans.swap(sub_scans);
+      ext_examples.swap(sub_examples);
+    }
+  }
+  if (scans.empty())
+    throw std::invalid_argument(
+        "SequenceReader: no scans (.bin, .pcd, .ply) in folder '" + folder +
+        "' nor in its velodyne/, pcd/ or ply/ subfolder");
+  if (ext_examples.size() > 1) {
+    std::string kinds;
+    for (const auto& [ext, example] : ext_examples)
+      kinds += (kinds.empty() ? "" : " and ") + ext + " (e.g. " + example + ")";
+    throw std::invalid_argument("SequenceReader: folder '" + scan_folder.string() +
+                                "' mixes scan extensions: " + kinds);
+  }
+  sortScans(scans);
+  scan_folder_ = scan_folder.string();
+  files_.reserve(scans.size());
+  for (const fs::path& p : scans)
+    files_.push_back(p.string());
+
+  // Timestamps: times.txt in the scan folder or its parent, else the file index.
+  // The parent is taken from the absolute, normalized path: "pcd/" or "." have one too.
+  fs::path abs_folder = fs::absolute(scan_folder, ec).lexically_normal();
+  if (!abs_folder.has_filename())
+    abs_folder = abs_folder.parent_path();
+  for (const fs::path& candidate :
+       {scan_folder / "times.txt", abs_folder.parent_path() / "times.txt"}) {
+    if (fs::is_regular_file(candidate, ec)) {
+      times_path_ = candidate.string();
+      break;
+    }
+  }
+  if (!times_path_.empty()) {
+    file_timestamps_s_ = readTimes(times_path_);
+    if (file_timestamps_s_.size() != files_.size())
+      throw std::runtime_error("SequenceReader: '" + times_path_ + "' has " +
+                               std::to_string(file_timestamps_s_.size()) +
+                               " timestamps but folder '" + scan_folder_ + "' has " +
+                               std::to_string(files_.size()) + " scans");
+  } else {
+    file_timestamps_s_.resize(files_.size());
+    for (std::size_t i = 0; i < files_.size(); ++i)
+      file_timestamps_s_[i] = static_cast<double>(i);
+  }
+
+  // Selection.
+  if (options.first >= files_.size())
+    throw std::invalid_argument(
+        "SequenceReader: first = " + std::to_string(options.first) + " but folder '" +
+        scan_folder_ + "' has only " + std::to_string(files_.size()) + " scans");
+  std::size_t last = files_.size() - 1;
+  if (options.last >= 0) {
+    if (static_cast<std::uint64_t>(options.last) >= files_.size())
+      throw std::invalid_argument(
+          "SequenceReader: last = " + std::to_string(options.last) + " but folder '" +
+          scan_folder_ + "' has only " + std::to_string(files_.size()) + " scans");
+    last = static_cast<std::size_t>(options.last);
+  }
+  for (std::size_t i = options.first; i <= last; i += options.stride)
+    selected_.push_back(i);
+}
+
+const std::string&
+SequenceReader::path(std::size_t i) const
+{
+  if (i >= selected_.size())
+    throw std::out_of_range("SequenceReader::path: index " + std::to_string(i) +
+                            " >= size " + std::to_string(selected_.size()));
+  return files_[selected_[i]];
+}
+
+double
+SequenceReader::timestamp(std::size_t i) const
+{
+  if (i >= selected_.size())
+    throw std::out_of_range("SequenceReader::timestamp: index " + std::to_string(i) +
+                            " >= size " + std::to_string(selected_.size()));
+  return file_timestamps_s_[selected_[i]];
+}
+
+ScanFrame
+SequenceReader::read(std::size_t i) const
+{
+  if (i >= selected_.size())
+    throw std::out_of_range("SequenceReader::read: index " + std::to_string(i) +
+                            " >= size " + std::to_string(selected_.size()));
+  ScanFrame frame;
+  frame.sequence_index = i;
+  frame.file_index = selected_[i];
+  frame.path = files_[frame.file_index];
+  frame.timestamp_s = file_timestamps_s_[frame.file_index];
+  frame.cloud = readScan(frame.path, &frame.num_dropped_non_finite);
+  return frame;
+}
+
+bool
+SequenceReader::next(ScanFrame& frame)
+{
+  if (cursor_ >= selected_.size())
+    return false;
+  const std::size_t i = cursor_++; // advance first: a bad frame must not block the rest
+  frame = read(i);
+  return true;
+}
+
+void
+SequenceReader::seek(std::size_t i)
+{
+  if (i > selected_.size())
+    throw std::out_of_range("SequenceReader::seek: index " + std::to_string(i) +
+                            " > size " + std::to_string(selected_.size()));
+  cursor_ = i;
+}
+
+} // namespace rast
+} // namespace pcl
