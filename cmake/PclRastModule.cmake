@@ -1,12 +1,14 @@
 # pcl_rast_add_module(<name> [DEPS <modules...>] [LIBS <libraries...>])
 #
-# Builds library pcl_rast_<name> from <name>/src/*.cpp with public headers in
+# Builds library pcl_rast::<name> (file libpcl_rast_<name>) from <name>/src/*.cpp with public headers in
 # <name>/include/pcl/<name>/, exports it as pcl_rast::<name> and installs it.
 # Sources are globbed (CONFIGURE_DEPENDS) so that adding a unit is one new file.
 function(pcl_rast_add_module name)
   cmake_parse_arguments(ARG "" "" "DEPS;LIBS" ${ARGN})
   file(GLOB srcs CONFIGURE_DEPENDS "${CMAKE_CURRENT_SOURCE_DIR}/src/*.cpp")
-  set(target pcl_rast_${name})
+  # The target is pcl_rast_<name>_lib (file libpcl_rast_<name>.so): the plain name is
+  # taken by the tools (pcl_rast_slam, pcl_rast_features are programs).
+  set(target pcl_rast_${name}_lib)
   if(NOT srcs)
     # A module still without sources (only headers so far) builds from an empty unit.
     set(srcs "${CMAKE_CURRENT_BINARY_DIR}/${target}_empty.cpp")
@@ -14,7 +16,7 @@ function(pcl_rast_add_module name)
   endif()
   add_library(${target} ${srcs})
   add_library(pcl_rast::${name} ALIAS ${target})
-  set_target_properties(${target} PROPERTIES EXPORT_NAME ${name}
+  set_target_properties(${target} PROPERTIES EXPORT_NAME ${name} OUTPUT_NAME pcl_rast_${name}
                         VERSION ${PROJECT_VERSION} SOVERSION ${PROJECT_VERSION_MAJOR}.${PROJECT_VERSION_MINOR})
   target_include_directories(${target} PUBLIC
     $<BUILD_INTERFACE:${CMAKE_CURRENT_SOURCE_DIR}/include>
@@ -22,7 +24,7 @@ function(pcl_rast_add_module name)
   target_include_directories(${target} SYSTEM PUBLIC ${PCL_INCLUDE_DIRS})
   target_compile_definitions(${target} PUBLIC ${PCL_DEFINITIONS})
   foreach(dep IN LISTS ARG_DEPS)
-    target_link_libraries(${target} PUBLIC pcl_rast_${dep})
+    target_link_libraries(${target} PUBLIC pcl_rast::${dep})
   endforeach()
   # ${PCL_LIBRARIES}, not single pcl_* targets: those lack their inter-module deps.
   target_link_libraries(${target} PUBLIC ${PCL_LIBRARIES} Eigen3::Eigen ${ARG_LIBS})

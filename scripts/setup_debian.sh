@@ -11,7 +11,7 @@ packages=(
   libceres-dev          # Ceres 2.1: bundle adjustment, pose graph
   nlohmann-json3-dev    # JSON summaries and evaluation output
   libgtest-dev libgmock-dev libbenchmark-dev
-  xvfb xauth libgl1-mesa-dri   # offscreen VTK rendering (Debian's VTK is X-only)
+  xvfb xauth libgl1-mesa-dri libx11-dev  # offscreen VTK rendering (Debian VTK is X-only)
 )
 
 missing=()

@@ -1,0 +1,336 @@
+// Tests of the top-down map render (tools/common/map_render.h): the VTK path on a
+// private Xvfb, the OpenCV fallback, parameter validation and failure paths.
+
+#include "map_render.h"
+#include "test_data.h"
+
+#include <cerrno>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <gtest/gtest.h>
+#include <iostream>
+#include <opencv2/imgcodecs.hpp>
+#include <optional>
+#include <random>
+#include <set>
+#include <signal.h>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <unistd.h>
+
+namespace {
+
+using pcl_rast_tools::MapRenderInput;
+using pcl_rast_tools::MapRenderParams;
+using pcl_rast_tools::MapRenderResult;
+using pcl_rast_tools::renderMapTopDown;
+
+/// Sets (or unsets, with nullptr) an environment variable for the scope.
+class ScopedEnv
+{
+public:
+  ScopedEnv(const char* name, const char* value) : name_(name)
+  {
+    if (const char* old = std::getenv(name))
+      old_ = old;
+    if (value)
+      ::setenv(name, value, 1);
+    else
+      ::unsetenv(name);
+  }
+  ~ScopedEnv()
+  {
+    if (old_)
+      ::setenv(name_.c_str(), old_->c_str(), 1);
+    else
+      ::unsetenv(name_.c_str());
+  }
+
+private:
+  std::string name_;
+  std::optional<std::string> old_;
+};
+
+/// A generated scene: ground, four boxes of different heights, a 30 m square
+/// trajectory around them driven twice, one loop closure back to the start.
+struct TestScene
+{
+  pcl::PointCloud<pcl::PointXYZI> map;
+  MapRenderInput input;
+
+  TestScene()
+  {
+    std::mt19937 rng(42);
+    std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+    std::normal_distribution<float> noise(0.0f, 0.02f);
+    auto add = [&](float x, float y, float z) {
+      pcl::PointXYZI p;
+      p.x = x + noise(rng);
+      p.y = y + noise(rng);
+      p.z = z + noise(rng);
+      p.intensity = 100.0f * unit(rng);
+      map.push_back(p);
+    };
+    for (int i = 0; i < 20000; ++i) // ground, 50 x 50 m
+      add(-10.0f + 50.0f * unit(rng), -10.0f + 50.0f * unit(rng), 0.0f);
+    struct Box
+    {
+      float x0, y0, sx, sy, h;
+    };
+    for (const Box& b : {Box{4, 4, 6, 4, 3},
+                         Box{20, 5, 4, 8, 6},
+                         Box{5, 20, 10, 3, 9},
+                         Box{19, 19, 6, 6, 12}}) {
+      for (int i = 0; i < 6000; ++i) { // walls
+        const float t = unit(rng), z = b.h * unit(rng);
+        switch (i % 4) {
+        case 0:
+          add(b.x0 + b.sx * t, b.y0, z);
+          break;
+        case 1:
+          add(b.x0 + b.sx * t, b.y0 + b.sy, z);
+          break;
+        case 2:
+          add(b.x0, b.y0 + b.sy * t, z);
+          break;
+        default:
+          add(b.x0 + b.sx, b.y0 + b.sy * t, z);
+          break;
+        }
+      }
+      for (int i = 0; i < 3000; ++i) // roof
+        add(b.x0 + b.sx * unit(rng), b.y0 + b.sy * unit(rng), b.h);
+    }
+    map.width = static_cast<std::uint32_t>(map.size());
+    map.height = 1;
+
+    input.map = &map;
+    const Eigen::Vector3d corners[4] = {
+        {0, 0, 1.5}, {30, 0, 1.5}, {30, 30, 1.5}, {0, 30, 1.5}};
+    for (int lap = 0; lap < 2; ++lap)
+      for (int side = 0; side < 4; ++side)
+        for (int k = 0; k < 30; ++k) {
+          const double t = k / 30.0;
+          // Odometry drift grows over the second lap, up to 2.4 m.
+          const double f = lap * (side * 30 + k) / 120.0;
+          const Eigen::Vector3d drift(1.8 * f, -1.6 * f, 0.0);
+          input.trajectory.push_back((1 - t) * corners[side] +
+                                     t * corners[(side + 1) % 4] + drift);
+          input.ground_truth.push_back((1 - t) * corners[side] +
+                                       t * corners[(side + 1) % 4]);
+        }
+    input.loop_edges.emplace_back(input.trajectory[239], input.trajectory[0]);
+    input.loop_edges.emplace_back(input.trajectory[195], input.trajectory[75]);
+    input.title = "test scene: 4 boxes, square loop";
+  }
+};
+
+bool
+xvfbInstalled()
+{
+  const char* path_env = std::getenv("PATH");
+  std::stringstream dirs(path_env ? path_env : "");
+  std::string dir;
+  while (std::getline(dirs, dir, ':'))
+    if (::access((dir + "/Xvfb").c_str(), X_OK) == 0)
+      return true;
+  return false;
+}
+
+bool
+processExists(int pid)
+{
+  return std::filesystem::exists("/proc/" + std::to_string(pid));
+}
+
+/// The PNG exists, has the requested size, is not blank and shows the trajectory.
+void
+expectGoodPicture(const std::filesystem::path& png, const MapRenderParams& params)
+{
+  ASSERT_TRUE(std::filesystem::exists(png)) << png;
+  const cv::Mat img = cv::imread(png.string(), cv::IMREAD_COLOR);
+  ASSERT_FALSE(img.empty());
+  EXPECT_EQ(img.cols, params.width_px);
+  EXPECT_EQ(img.rows, params.height_px);
+  std::set<int> colours;
+  int trajectory_px = 0, loop_px = 0;
+  const auto& t = params.trajectory_colour;
+  const auto& l = params.loop_edge_colour;
+  for (int r = 0; r < img.rows; ++r)
+    for (int c = 0; c < img.cols; ++c) {
+      const cv::Vec3b px = img.at<cv::Vec3b>(r, c);
+      colours.insert(px[0] | (px[1] << 8) | (px[2] << 16));
+      if (std::abs(px[2] - t.r) <= 2 && std::abs(px[1] - t.g) <= 2 &&
+          std::abs(px[0] - t.b) <= 2)
+        ++trajectory_px;
+      if (std::abs(px[2] - l.r) <= 2 && std::abs(px[1] - l.g) <= 2 &&
+          std::abs(px[0] - l.b) <= 2)
+        ++loop_px;
+    }
+  EXPECT_GT(colours.size(), 100u) << "picture looks blank";
+  EXPECT_GT(trajectory_px, 1000) << "trajectory colour missing";
+  EXPECT_GT(loop_px, 50) << "loop edge colour missing";
+  // No temporary file left beside the PNG.
+  for (const auto& entry : std::filesystem::directory_iterator(png.parent_path()))
+    EXPECT_EQ(entry.path().filename().string().find(".tmp-"), std::string::npos)
+        << entry.path();
+}
+
+TEST(MapRender, VtkOnPrivateXvfbWithoutDisplay)
+{
+  if (!xvfbInstalled())
+    GTEST_SKIP() << "Xvfb is not installed: skipping the VTK-on-Xvfb render";
+  ScopedEnv no_display("DISPLAY", nullptr);
+  const TestScene scene;
+  const MapRenderParams params;
+  const auto png = pcl_rast_test::makeTempDir("map_render") / "render.png";
+  const MapRenderResult result = renderMapTopDown(scene.input, params, png.string());
+  ASSERT_TRUE(result.success) << result.message;
+  EXPECT_EQ(result.backend, "vtk-xvfb") << result.message;
+  expectGoodPicture(png, params);
+  // The private Xvfb was started, then stopped and reaped (no zombie in /proc).
+  ASSERT_GT(result.xvfb_pid, 0);
+  EXPECT_FALSE(processExists(result.xvfb_pid));
+  EXPECT_EQ(::kill(result.xvfb_pid, 0), -1);
+  std::cout << "vtk-xvfb render: " << result.render_time_ms << " ms -> " << png << "\n";
+}
+
+TEST(MapRender, VtkOnPrivateXvfbWhenDisplayIsBroken)
+{
+  if (!xvfbInstalled())
+    GTEST_SKIP() << "Xvfb is not installed: skipping the VTK-on-Xvfb render";
+  ScopedEnv broken_display("DISPLAY", ":4711"); // nobody listens there
+  const TestScene scene;
+  MapRenderParams params;
+  params.width_px = 640;
+  params.height_px = 480;
+  const auto png = pcl_rast_test::makeTempDir("map_render") / "render.png";
+  const MapRenderResult result = renderMapTopDown(scene.input, params, png.string());
+  ASSERT_TRUE(result.success) << result.message;
+  EXPECT_EQ(result.backend, "vtk-xvfb");
+  EXPECT_NE(result.message.find(":4711"), std::string::npos) << result.message;
+  EXPECT_FALSE(processExists(result.xvfb_pid));
+}
+
+TEST(MapRender, ForcedOpenCvFallback)
+{
+  const TestScene scene;
+  MapRenderParams params;
+  params.force_software_fallback = true;
+  const auto png = pcl_rast_test::makeTempDir("map_render") / "render.png";
+  const MapRenderResult result = renderMapTopDown(scene.input, params, png.string());
+  ASSERT_TRUE(result.success) << result.message;
+  EXPECT_EQ(result.backend, "opencv-fallback");
+  EXPECT_FALSE(result.message.empty());
+  EXPECT_EQ(result.xvfb_pid, -1);
+  expectGoodPicture(png, params);
+  std::cout << "opencv render: " << result.render_time_ms << " ms -> " << png << "\n";
+}
+
+TEST(MapRender, FallbackWhenNoDisplayAndNoXvfb)
+{
+  ScopedEnv no_display("DISPLAY", nullptr);
+  const TestScene scene;
+  MapRenderParams params;
+  params.width_px = 800;
+  params.height_px = 600;
+  params.xvfb_executable = "/nonexistent/Xvfb";
+  const auto png = pcl_rast_test::makeTempDir("map_render") / "render.png";
+  const MapRenderResult result = renderMapTopDown(scene.input, params, png.string());
+  ASSERT_TRUE(result.success) << result.message;
+  EXPECT_EQ(result.backend, "opencv-fallback");
+  EXPECT_NE(result.message.find("Xvfb"), std::string::npos) << result.message;
+  expectGoodPicture(png, params);
+
+  // Without the fallback the same call fails cleanly and writes nothing.
+  params.allow_software_fallback = false;
+  std::filesystem::remove(png);
+  const MapRenderResult strict = renderMapTopDown(scene.input, params, png.string());
+  EXPECT_FALSE(strict.success);
+  EXPECT_FALSE(strict.message.empty());
+  EXPECT_FALSE(std::filesystem::exists(png));
+}
+
+TEST(MapRender, InvalidArgumentsThrow)
+{
+  const TestScene scene;
+  const std::string png =
+      (pcl_rast_test::makeTempDir("map_render") / "render.png").string();
+  auto expect_throw = [&](const MapRenderParams& p) {
+    EXPECT_THROW(renderMapTopDown(scene.input, p, png), std::invalid_argument);
+  };
+  MapRenderParams p;
+  p.width_px = 0;
+  expect_throw(p);
+  p = MapRenderParams();
+  p.height_px = 100000;
+  expect_throw(p);
+  p = MapRenderParams();
+  p.point_size_px = 0.0f;
+  expect_throw(p);
+  p = MapRenderParams();
+  p.colour_low_percentile = 90.0;
+  p.colour_high_percentile = 10.0;
+  expect_throw(p);
+  p = MapRenderParams();
+  p.trajectory_width_px = -1.0f;
+  expect_throw(p);
+  p = MapRenderParams();
+  p.vtk_render_timeout_s = 0.0;
+  expect_throw(p);
+  std::string why;
+  p = MapRenderParams();
+  p.width_px = 0;
+  EXPECT_FALSE(p.isValid(&why));
+  EXPECT_NE(why.find("width_px"), std::string::npos);
+  EXPECT_TRUE(MapRenderParams().isValid());
+
+  MapRenderInput no_map = scene.input;
+  no_map.map = nullptr;
+  EXPECT_THROW(renderMapTopDown(no_map, MapRenderParams(), png), std::invalid_argument);
+  EXPECT_THROW(renderMapTopDown(scene.input, MapRenderParams(), ""),
+               std::invalid_argument);
+}
+
+TEST(MapRender, UnwritablePathReportsFailure)
+{
+  const TestScene scene;
+  MapRenderParams params;
+  params.width_px = 320;
+  params.height_px = 240;
+  params.force_software_fallback = true; // the write path is what is tested
+  const auto dir = pcl_rast_test::makeTempDir("map_render");
+  // A folder that does not exist, and a regular file used as a folder: both fail
+  // even when the tests run as root.
+  const auto missing = dir / "no_such_folder" / "render.png";
+  const auto file_as_dir = dir / "plain_file";
+  std::ofstream(file_as_dir) << "x";
+  for (const auto& path : {missing, file_as_dir / "render.png"}) {
+    const MapRenderResult result = renderMapTopDown(scene.input, params, path.string());
+    EXPECT_FALSE(result.success) << path;
+    EXPECT_FALSE(result.message.empty());
+    EXPECT_NE(result.message.find("cannot write"), std::string::npos) << result.message;
+  }
+}
+
+TEST(MapRender, EmptyMapStillRendersTrajectory)
+{
+  const TestScene scene;
+  const pcl::PointCloud<pcl::PointXYZI> empty;
+  MapRenderInput input = scene.input;
+  input.map = &empty;
+  MapRenderParams params;
+  params.width_px = 640;
+  params.height_px = 480;
+  params.force_software_fallback = true;
+  const auto png = pcl_rast_test::makeTempDir("map_render") / "render.png";
+  const MapRenderResult result = renderMapTopDown(input, params, png.string());
+  ASSERT_TRUE(result.success) << result.message;
+  const cv::Mat img = cv::imread(png.string());
+  ASSERT_FALSE(img.empty());
+  EXPECT_EQ(img.cols, 640);
+}
+
+} // namespace
