@@ -1,0 +1,199 @@
+#pragma once
+/// \file point_to_plane_refinement.h
+/// \brief Dense refinement: robust point-to-plane ICP of a voxelized source scan against
+/// a prepared target (voxelized scan or local map with normals, kd-tree built once).
+/// \ingroup registration
+
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <Eigen/StdVector>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace pcl {
+namespace rast {
+
+/// \brief 3D points as plain data (metres).
+using PointVector = std::vector<Eigen::Vector3d, Eigen::aligned_allocator<Eigen::Vector3d>>;
+
+/// \brief Robust kernels for the point-to-plane residual r, with scale s.
+enum class RobustKernel
+{
+  kNone,        ///< least squares, w = 1
+  kHuber,       ///< w = 1 for |r| <= k, k / |r| beyond; k = 1.345 s
+  kTukey,       ///< w = (1 - (r/c)^2)^2 for |r| < c, 0 beyond; c = 4.685 s
+  kGemanMcClure ///< w = (s^2 / (s^2 + r^2))^2
+};
+
+/// \brief Parameters of point-to-plane refinement.
+struct PointToPlaneParams
+{
+  /// Source scan keeps one point per voxel of this size (metres); 0: no downsampling.
+  double source_voxel_size_m = 0.5;
+  /// Target scan keeps one point per voxel of this size before normals (metres); 0: none.
+  double target_voxel_size_m = 0.3;
+  /// Nearest target points fitted by each target point's plane (>= 3).
+  int normal_neighbours = 10;
+  /// A target point is unused when its neighbourhood's surface variation
+  /// lambda_min / (lambda_0 + lambda_1 + lambda_2) exceeds this (not a plane), [0, 1/3].
+  double max_surface_variation = 0.1;
+  /// Source points farther than this from their nearest target point are unpaired (metres).
+  double max_correspondence_distance_m = 1.0;
+  /// Robust kernel on point-to-plane residuals.
+  RobustKernel kernel = RobustKernel::kGemanMcClure;
+  /// Kernel scale (metres); 0: adaptive, at iteration k the larger of 1.4826 * median |r|
+  /// (a robust sigma of the current residuals) and (max_correspondence_distance_m / 3)
+  /// / 2^k (graduated: wide first), clamped to [min_kernel_scale_m,
+  /// max_correspondence_distance_m / 3].
+  double kernel_scale_m = 0.0;
+  /// Lower bound of the adaptive kernel scale (metres), about the sensor noise.
+  double min_kernel_scale_m = 0.03;
+  /// Gauss-Newton iterations at most.
+  int max_iterations = 30;
+  /// Converged when an update moves less than this (metres) ...
+  double convergence_translation_m = 1e-4;
+  /// ... and rotates less than this (radians).
+  double convergence_rotation_rad = 1e-5;
+  /// Fewer paired source points than this: failure.
+  int min_correspondences = 50;
+  /// Failure ("diverged") when fewer than this fraction of the source points are paired
+  /// at the end, (0, 1].
+  double min_overlap_ratio = 0.2;
+  /// Failure ("diverged") when the result differs from the initial guess by more than
+  /// this translation (metres) ...
+  double max_correction_m = 3.0;
+  /// ... or this rotation (radians, default 30 deg).
+  double max_correction_rad = 0.5235987755982988;
+
+  /// \brief True when all values are in range; otherwise says why in *why (if given).
+  bool
+  isValid(std::string* why = nullptr) const;
+};
+
+/// \brief Outcome of point-to-plane refinement.
+struct PointToPlaneResult
+{
+  /// True when enough points were paired and the solution did not run away.
+  bool success = false;
+  /// True when the last update was below the convergence thresholds.
+  bool converged = false;
+  /// Refined transform (the initial guess when nothing could be done).
+  Eigen::Isometry3d T_target_source = Eigen::Isometry3d::Identity();
+  /// Gauss-Newton iterations run.
+  int iterations = 0;
+  /// Source points used (after voxelization).
+  int num_source_points = 0;
+  /// Source points paired with a target plane in the last iteration.
+  int num_correspondences = 0;
+  /// RMS point-to-plane distance (metres) in the last iteration over the paired points
+  /// whose |residual| is within 3 kernel scales (the inliers).
+  double rmse_m = 0.0;
+  /// Why it failed, or a short summary.
+  std::string message;
+};
+
+/// \brief One point per occupied voxel (the first one met, a real measurement, as in
+/// KISS-ICP); non-finite points are dropped. voxel_size_m <= 0 keeps all finite points.
+PointVector
+voxelDownsample(const PointVector& points, double voxel_size_m);
+
+/// \brief Finite points of a PCL cloud as plain data.
+PointVector
+toPointVector(const pcl::PointCloud<pcl::PointXYZI>& cloud);
+
+/// \brief A registration target prepared once (voxelized points, normals, kd-tree) and
+/// reused for many sources, e.g. a key-frame scan or a local map.
+class PointToPlaneTarget
+{
+public:
+  using Ptr = std::shared_ptr<PointToPlaneTarget>;
+  using ConstPtr = std::shared_ptr<const PointToPlaneTarget>;
+
+  PointToPlaneTarget();
+  ~PointToPlaneTarget();
+  PointToPlaneTarget(PointToPlaneTarget&&) noexcept;
+  PointToPlaneTarget&
+  operator=(PointToPlaneTarget&&) noexcept;
+
+  /// \brief Prepare from a raw scan: voxelize (target_voxel_size_m), fit normals
+  /// (normal_neighbours, max_surface_variation), index the planar points.
+  /// \throws std::invalid_argument on invalid params or fewer than normal_neighbours points
+  void
+  build(const PointVector& points, const PointToPlaneParams& params = PointToPlaneParams());
+  /// \overload
+  void
+  build(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+        const PointToPlaneParams& params = PointToPlaneParams());
+  /// \brief Prepare from points that carry normals already (e.g. a local map); points
+  /// with non-finite or zero normals are dropped. No voxelization.
+  /// \throws std::invalid_argument when no point has a valid normal
+  void
+  build(const pcl::PointCloud<pcl::PointNormal>& cloud_with_normals);
+
+  /// \brief Nearest planar target point within max_distance_m of query.
+  /// \return false when there is none
+  bool
+  nearest(const Eigen::Vector3d& query,
+          double max_distance_m,
+          Eigen::Vector3d& point,
+          Eigen::Vector3d& normal) const;
+
+  /// \brief Planar target points (metres) and their unit normals, index-aligned.
+  const PointVector&
+  points() const
+  {
+    return points_;
+  }
+  const PointVector&
+  normals() const
+  {
+    return normals_;
+  }
+  std::size_t
+  size() const
+  {
+    return points_.size();
+  }
+  bool
+  empty() const
+  {
+    return points_.empty();
+  }
+
+private:
+  void
+  buildIndex();
+
+  PointVector points_;
+  PointVector normals_;
+  struct Index;
+  std::unique_ptr<Index> index_;
+};
+
+/// \brief Robust point-to-plane Gauss-Newton: minimise sum_i w(r_i) r_i^2 with
+/// r_i = n_i . (T p_i - q_i), q_i the nearest planar target point of T p_i.
+/// \param[in] source source points (already voxelized; see voxelDownsample())
+/// \param[in] target prepared target
+/// \param[in] T_target_source_guess starting point, e.g. the feature-based estimate
+/// \param[in] params parameters (the voxel sizes are not used here)
+/// \throws std::invalid_argument on invalid params or an empty target
+PointToPlaneResult
+refinePointToPlane(const PointVector& source,
+                   const PointToPlaneTarget& target,
+                   const Eigen::Isometry3d& T_target_source_guess,
+                   const PointToPlaneParams& params = PointToPlaneParams());
+
+/// \brief Voxelize a source scan (source_voxel_size_m), then refinePointToPlane().
+PointToPlaneResult
+refinePointToPlane(const pcl::PointCloud<pcl::PointXYZI>& source,
+                   const PointToPlaneTarget& target,
+                   const Eigen::Isometry3d& T_target_source_guess,
+                   const PointToPlaneParams& params = PointToPlaneParams());
+
+} // namespace rast
+} // namespace pcl

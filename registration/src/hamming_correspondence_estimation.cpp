@@ -1,0 +1,132 @@
+/// \file hamming_correspondence_estimation.cpp
+/// \brief Brute-force ORB matching: one pass over all (source, target) pairs keeps the
+/// best and second-best target of each source and the best source of each target.
+
+#include <pcl/registration/hamming_correspondence_estimation.h>
+
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <vector>
+
+namespace pcl {
+namespace rast {
+
+bool
+HammingMatchParams::isValid(std::string* why) const
+{
+  std::string reason;
+  if (max_hamming_distance < 0 || max_hamming_distance > 256)
+    reason = "max_hamming_distance must be in [0, 256], got " +
+             std::to_string(max_hamming_distance);
+  else if (!(ratio > 0.0 && ratio <= 1.0))
+    reason = "ratio must be in (0, 1], got " + std::to_string(ratio);
+  else if (!(spatial_gate_radius_m >= 0.0) || !std::isfinite(spatial_gate_radius_m))
+    reason = "spatial_gate_radius_m must be finite and >= 0, got " +
+             std::to_string(spatial_gate_radius_m);
+  if (why)
+    *why = reason;
+  return reason.empty();
+}
+
+namespace {
+
+void
+checkFeatureSet(const RasterFeatureSet& set, const char* name)
+{
+  if (set.points.size() != set.descriptors.size())
+    throw std::invalid_argument(std::string("matchHamming: ") + name + " has " +
+                                std::to_string(set.points.size()) + " points but " +
+                                std::to_string(set.descriptors.size()) + " descriptors");
+}
+
+} // namespace
+
+pcl::Correspondences
+matchHamming(const RasterFeatureSet& source,
+             const RasterFeatureSet& target,
+             const HammingMatchParams& params,
+             const Eigen::Isometry3d& T_target_source_guess)
+{
+  std::string why;
+  if (!params.isValid(&why))
+    throw std::invalid_argument("matchHamming: invalid params: " + why);
+  checkFeatureSet(source, "source");
+  checkFeatureSet(target, "target");
+
+  constexpr int kNone = std::numeric_limits<int>::max();
+  const std::size_t n_source = source.size();
+  const std::size_t n_target = target.size();
+  std::vector<int> best_target(n_source, -1), best_distance(n_source, kNone),
+      second_distance(n_source, kNone);
+  std::vector<int> best_source(n_target, -1), best_source_distance(n_target, kNone);
+
+  const bool gated = params.spatial_gate_radius_m > 0.0;
+  const float gate_sq = static_cast<float>(params.spatial_gate_radius_m *
+                                           params.spatial_gate_radius_m);
+  const Eigen::Isometry3f T = T_target_source_guess.cast<float>();
+
+  for (std::size_t i = 0; i < n_source; ++i) {
+    const OrbDescriptor& d_source = source.descriptors[i];
+    const Eigen::Vector3f p_in_target = T * source.points[i].getVector3fMap();
+    for (std::size_t j = 0; j < n_target; ++j) {
+      if (gated &&
+          (target.points[j].getVector3fMap() - p_in_target).squaredNorm() > gate_sq)
+        continue;
+      const int d = hammingDistance(d_source, target.descriptors[j]);
+      if (d < best_distance[i]) {
+        second_distance[i] = best_distance[i];
+        best_distance[i] = d;
+        best_target[i] = static_cast<int>(j);
+      }
+      else if (d < second_distance[i])
+        second_distance[i] = d;
+      if (d < best_source_distance[j]) {
+        best_source_distance[j] = d;
+        best_source[j] = static_cast<int>(i);
+      }
+    }
+  }
+
+  pcl::Correspondences correspondences;
+  for (std::size_t i = 0; i < n_source; ++i) {
+    const int j = best_target[i];
+    if (j < 0 || best_distance[i] > params.max_hamming_distance)
+      continue;
+    if (params.ratio < 1.0 && second_distance[i] != kNone &&
+        !(best_distance[i] < params.ratio * second_distance[i]))
+      continue;
+    if (params.mutual_check && best_source[j] != static_cast<int>(i))
+      continue;
+    correspondences.emplace_back(static_cast<int>(i), j, static_cast<float>(best_distance[i]));
+  }
+  return correspondences;
+}
+
+HammingCorrespondenceEstimation::HammingCorrespondenceEstimation(const HammingMatchParams& params)
+{
+  setParams(params);
+}
+
+void
+HammingCorrespondenceEstimation::setParams(const HammingMatchParams& params)
+{
+  std::string why;
+  if (!params.isValid(&why))
+    throw std::invalid_argument("HammingCorrespondenceEstimation::setParams: " + why);
+  params_ = params;
+}
+
+void
+HammingCorrespondenceEstimation::determineCorrespondences(
+    pcl::Correspondences& correspondences) const
+{
+  if (!source_ || !target_)
+    throw std::invalid_argument(
+        std::string("HammingCorrespondenceEstimation::determineCorrespondences: no input ") +
+        (source_ ? "target" : "source") + " set");
+  correspondences = matchHamming(*source_, *target_, params_, T_target_source_guess_);
+}
+
+} // namespace rast
+} // namespace pcl

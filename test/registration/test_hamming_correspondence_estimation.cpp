@@ -1,0 +1,182 @@
+/// \file test_hamming_correspondence_estimation.cpp
+/// \brief Hamming matching on constructed descriptors: exact matches, max distance,
+/// Lowe's ratio test, mutual check, spatial gate, validation.
+
+#include <pcl/registration/hamming_correspondence_estimation.h>
+
+#include <gtest/gtest.h>
+
+#include <random>
+
+namespace {
+
+using pcl::rast::HammingMatchParams;
+using pcl::rast::OrbDescriptor;
+using pcl::rast::RasterFeatureSet;
+
+/// A descriptor with the first `ones` bits set.
+OrbDescriptor
+withBits(int ones)
+{
+  OrbDescriptor d{};
+  for (int b = 0; b < ones; ++b)
+    d[b / 8] |= static_cast<std::uint8_t>(1u << (b % 8));
+  return d;
+}
+
+/// d with bits [first, first + count) flipped.
+OrbDescriptor
+flipped(OrbDescriptor d, int first, int count)
+{
+  for (int b = first; b < first + count; ++b)
+    d[b / 8] ^= static_cast<std::uint8_t>(1u << (b % 8));
+  return d;
+}
+
+void
+add(RasterFeatureSet& set, const OrbDescriptor& d, float x = 0.f, float y = 0.f)
+{
+  pcl::rast::RasterFeaturePoint p{};
+  p.x = x;
+  p.y = y;
+  p.z = 0.f;
+  set.points.push_back(p);
+  set.descriptors.push_back(d);
+}
+
+OrbDescriptor
+randomDescriptor(std::mt19937& rng)
+{
+  OrbDescriptor d;
+  for (auto& byte : d)
+    byte = static_cast<std::uint8_t>(rng() & 0xFF);
+  return d;
+}
+
+TEST(HammingCorrespondenceEstimation, MatchesNoisyCopiesOfRandomDescriptors)
+{
+  std::mt19937 rng(7);
+  RasterFeatureSet source, target;
+  for (int i = 0; i < 200; ++i)
+    add(target, randomDescriptor(rng));
+  // source i is target (199 - i) with 10 bits flipped.
+  for (int i = 0; i < 200; ++i)
+    add(source, flipped(target.descriptors[199 - i], (i * 13) % 240, 10));
+
+  const pcl::Correspondences c = pcl::rast::matchHamming(source, target);
+  ASSERT_EQ(c.size(), 200u);
+  for (const auto& m : c) {
+    EXPECT_EQ(m.index_match, 199 - m.index_query);
+    EXPECT_FLOAT_EQ(m.distance, 10.f);
+  }
+}
+
+TEST(HammingCorrespondenceEstimation, MaxHammingDistance)
+{
+  RasterFeatureSet source, target;
+  add(target, withBits(0));
+  add(source, withBits(30));
+  HammingMatchParams params;
+  params.max_hamming_distance = 29;
+  EXPECT_TRUE(pcl::rast::matchHamming(source, target, params).empty());
+  params.max_hamming_distance = 30;
+  EXPECT_EQ(pcl::rast::matchHamming(source, target, params).size(), 1u);
+}
+
+TEST(HammingCorrespondenceEstimation, RatioTestRejectsAmbiguousMatches)
+{
+  RasterFeatureSet source, target;
+  add(source, withBits(0));
+  add(target, flipped(withBits(0), 0, 20));   // distance 20
+  add(target, flipped(withBits(0), 100, 22)); // distance 22: ambiguous
+  HammingMatchParams params;
+  params.mutual_check = false;
+  params.ratio = 0.8;
+  EXPECT_TRUE(pcl::rast::matchHamming(source, target, params).empty());
+  params.ratio = 1.0; // disabled
+  const auto c = pcl::rast::matchHamming(source, target, params);
+  ASSERT_EQ(c.size(), 1u);
+  EXPECT_EQ(c[0].index_match, 0);
+
+  // A distinctive best match passes: 10 < 0.8 * 22.
+  target.descriptors[0] = flipped(withBits(0), 0, 10);
+  params.ratio = 0.8;
+  EXPECT_EQ(pcl::rast::matchHamming(source, target, params).size(), 1u);
+}
+
+TEST(HammingCorrespondenceEstimation, MutualCheckKeepsOnlyCrossConsistentPairs)
+{
+  // Both sources prefer target 0, but target 0 prefers source 1.
+  RasterFeatureSet source, target;
+  add(target, withBits(0));
+  add(target, flipped(withBits(0), 200, 56)); // far from both sources
+  add(source, flipped(withBits(0), 0, 12));   // source 0: distance 12 to target 0
+  add(source, flipped(withBits(0), 50, 5));   // source 1: distance 5 to target 0
+  HammingMatchParams params;
+  params.ratio = 1.0;
+  params.mutual_check = false;
+  EXPECT_EQ(pcl::rast::matchHamming(source, target, params).size(), 2u);
+  params.mutual_check = true;
+  const auto c = pcl::rast::matchHamming(source, target, params);
+  ASSERT_EQ(c.size(), 1u);
+  EXPECT_EQ(c[0].index_query, 1);
+  EXPECT_EQ(c[0].index_match, 0);
+}
+
+TEST(HammingCorrespondenceEstimation, SpatialGateUsesTheInitialGuess)
+{
+  // Two targets with the same descriptor, 10 m apart; the guess decides.
+  RasterFeatureSet source, target;
+  add(target, withBits(40), 0.f, 0.f);
+  add(target, withBits(40), 10.f, 0.f);
+  add(source, withBits(40), 0.f, 0.f);
+  HammingMatchParams params;
+  params.spatial_gate_radius_m = 1.0;
+  Eigen::Isometry3d guess = Eigen::Isometry3d::Identity();
+  guess.translation() = Eigen::Vector3d(10.2, 0.0, 0.0);
+  auto c = pcl::rast::matchHamming(source, target, params, guess);
+  ASSERT_EQ(c.size(), 1u);
+  EXPECT_EQ(c[0].index_match, 1);
+  guess.translation() = Eigen::Vector3d(0.3, 0.0, 0.0);
+  c = pcl::rast::matchHamming(source, target, params, guess);
+  ASSERT_EQ(c.size(), 1u);
+  EXPECT_EQ(c[0].index_match, 0);
+  guess.translation() = Eigen::Vector3d(5.0, 0.0, 0.0); // nothing within 1 m
+  EXPECT_TRUE(pcl::rast::matchHamming(source, target, params, guess).empty());
+  // Without the gate the two equal candidates are ambiguous for the ratio test.
+  params.spatial_gate_radius_m = 0.0;
+  EXPECT_TRUE(pcl::rast::matchHamming(source, target, params, guess).empty());
+}
+
+TEST(HammingCorrespondenceEstimation, ClassWrapperAndValidation)
+{
+  auto source = std::make_shared<RasterFeatureSet>();
+  auto target = std::make_shared<RasterFeatureSet>();
+  add(*source, withBits(3));
+  add(*target, withBits(3));
+  pcl::rast::HammingCorrespondenceEstimation estimation;
+  pcl::Correspondences c;
+  EXPECT_THROW(estimation.determineCorrespondences(c), std::invalid_argument);
+  estimation.setInputSource(source);
+  estimation.setInputTarget(target);
+  estimation.determineCorrespondences(c);
+  EXPECT_EQ(c.size(), 1u);
+
+  target->descriptors.push_back(withBits(1)); // points and descriptors now differ
+  EXPECT_THROW(estimation.determineCorrespondences(c), std::invalid_argument);
+
+  HammingMatchParams bad;
+  bad.ratio = 1.5;
+  std::string why;
+  EXPECT_FALSE(bad.isValid(&why));
+  EXPECT_NE(why.find("ratio"), std::string::npos);
+  EXPECT_THROW(estimation.setParams(bad), std::invalid_argument);
+  bad = HammingMatchParams();
+  bad.max_hamming_distance = 300;
+  EXPECT_FALSE(bad.isValid());
+  bad = HammingMatchParams();
+  bad.spatial_gate_radius_m = -1.0;
+  EXPECT_THROW(pcl::rast::matchHamming(*source, *source, bad), std::invalid_argument);
+}
+
+} // namespace
