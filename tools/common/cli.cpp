@@ -254,7 +254,10 @@ ArgParser::usage() const
   out << "\nOptions:\n";
   for (const auto& option : options_) {
     const std::string flag = "-" + option.name + (option.kind.empty() ? "" : " " + option.kind);
-    out << "  " << std::left << std::setw(26) << flag << option.help;
+    out << "  " << std::left << std::setw(26) << flag;
+    if (flag.size() >= 26)
+      out << "\n  " << std::string(26, ' ');
+    out << option.help;
     if (option.required)
       out << " (required)";
     else if (!option.default_text.empty())
