@@ -1,0 +1,236 @@
+#pragma once
+/// \file range_raster_image.h
+/// \brief Rasterization of the paper (Sec. "Rasterization"): a cloud becomes a
+/// top-down gray image whose pixel value is the maximum height of the points in that
+/// pixel, and every pixel remembers the 3D point behind it so an image keypoint lifts
+/// back to 3D exactly. See doc/raster_projection.md.
+/// \ingroup features
+
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <string>
+
+namespace pcl {
+namespace rast {
+
+/// \brief How 3D points map to raster pixels.
+enum class RasterProjection
+{
+  /// The paper's pinhole model, Eq. (1)-(3): P_c = R (I | t) P_l, u = f X/Z + t_u,
+  /// v = f Y/Z + t_v, optical axis = LiDAR z axis, camera 70 m below the sensor.
+  kPinhole,
+  /// Metric bird's-eye view centred on the sensor: a fixed number of metres per pixel,
+  /// row up = +x (forward), column left = +y (left).
+  kOrthographic
+};
+
+/// \brief The paper's camera (Sec. 10, implementation details): principal point
+/// (0, 0), focal length 500, R = I, t = [-25, -25, 70], 750 x 750 pixels.
+/// With these values the image covers x, y in about [25, 130] m at z = 0 (see doc).
+struct PinholeRasterParams
+{
+  double focal_px = 500.0;      ///< f [pixels]
+  double principal_u_px = 0.0;  ///< t_u [pixels]
+  double principal_v_px = 0.0;  ///< t_v [pixels]
+  double t_x_m = -25.0;         ///< extrinsic translation t (R = I) [m]
+  double t_y_m = -25.0;         ///< extrinsic translation t [m]
+  double t_z_m = 70.0;          ///< extrinsic translation t [m]; Z = z + t_z must be > 0
+  int width_px = 750;           ///< image columns
+  int height_px = 750;          ///< image rows
+};
+
+/// \brief Metric bird's-eye view: the square [-half_extent_m, half_extent_m]^2 around
+/// the sensor, resolution_m per pixel (defaults: 512 x 512 pixels of 0.2 m).
+struct OrthographicRasterParams
+{
+  double resolution_m = 0.2;   ///< pixel size [m]
+  double half_extent_m = 51.2; ///< half side of the covered square [m]
+};
+
+/// \brief Parameters of RangeRasterImage.
+struct RangeRasterParams
+{
+  /// Projection; orthographic by default (better matches on KITTI, see the doc).
+  RasterProjection projection = RasterProjection::kOrthographic;
+  PinholeRasterParams pinhole;
+  OrthographicRasterParams orthographic;
+  /// Heights mapped to gray levels 1..255: z of the rasterized cloud, i.e. relative to
+  /// the sensor (LiDAR frame, or the levelled frame of SACGroundRemoval). Heights
+  /// outside the range are clamped; gray 0 means "no point". KITTI's sensor is 1.73 m
+  /// above the road, so [-2, 3] m spans road level to 4.7 m above it.
+  float min_height_m = -2.0f;
+  float max_height_m = 3.0f;
+
+  /// \brief Whether all values are usable; on failure \a why (if not null) says which.
+  bool
+  isValid(std::string* why = nullptr) const;
+
+  /// \brief Image size in pixels for the chosen projection.
+  int
+  width() const;
+  int
+  height() const;
+};
+
+/// \brief Continuous pixel coordinates of a 3D point (pixel (c, r) is centred on
+/// u = c, v = r, OpenCV's keypoint convention). Returns false when the point is not
+/// finite or lies behind the pinhole camera; it does NOT check the image bounds.
+/// \ingroup features
+bool
+projectToRaster(const RangeRasterParams& params, const Eigen::Vector3f& p, Eigen::Vector2f& uv);
+
+/// \brief The inverse of projectToRaster for a known height \a z_m: the 3D point that
+/// projects to \a uv and has z = z_m.
+/// \ingroup features
+Eigen::Vector3f
+rasterToPoint(const RangeRasterParams& params, const Eigen::Vector2f& uv, float z_m);
+
+/// \brief Gray level (1..255) of a height under \a params' height range.
+inline std::uint8_t
+heightToGray(const RangeRasterParams& params, float z_m)
+{
+  const float s = (z_m - params.min_height_m) / (params.max_height_m - params.min_height_m);
+  const float g = 1.0f + 254.0f * (s < 0.0f ? 0.0f : (s > 1.0f ? 1.0f : s));
+  return static_cast<std::uint8_t>(g + 0.5f);
+}
+
+/// \brief A cloud rasterized to a top-down max-height image, with the index of the
+/// highest point of every pixel.
+///
+/// \code
+/// pcl::rast::RangeRasterImage raster(params);
+/// raster.setInputCloud(non_ground);
+/// raster.compute();
+/// cv::imwrite("raster.png", raster.image());
+/// \endcode
+/// Copies are cheap (the images are reference counted and shared); a later compute()
+/// on the original does not change the images of a copy.
+/// \ingroup features
+class RangeRasterImage
+{
+public:
+  using Ptr = std::shared_ptr<RangeRasterImage>;
+  using ConstPtr = std::shared_ptr<const RangeRasterImage>;
+  using PointT = pcl::PointXYZI;
+  using PointCloud = pcl::PointCloud<PointT>;
+
+  RangeRasterImage() = default;
+  /// \throws std::invalid_argument when !params.isValid().
+  explicit RangeRasterImage(const RangeRasterParams& params) { setParams(params); }
+
+  /// \throws std::invalid_argument when !params.isValid().
+  void
+  setParams(const RangeRasterParams& params);
+  const RangeRasterParams&
+  getParams() const
+  {
+    return params_;
+  }
+
+  /// \brief \throws std::invalid_argument when null.
+  void
+  setInputCloud(const PointCloud::ConstPtr& cloud);
+  PointCloud::ConstPtr
+  getInputCloud() const
+  {
+    return input_;
+  }
+
+  /// \brief Rasterize the input cloud (one pass over the points). Non-finite points
+  /// and points outside the image are skipped.
+  /// \throws std::invalid_argument when no input cloud was set.
+  void
+  compute();
+
+  /// \brief Whether compute() has run on the current input and parameters.
+  bool
+  isComputed() const
+  {
+    return computed_;
+  }
+
+  /// \brief Continuous pixel coordinates of \a p (see projectToRaster); false when
+  /// not projectable or outside the image.
+  bool
+  project(const Eigen::Vector3f& p, Eigen::Vector2f& uv) const;
+
+  /// \brief The pixel (column, row) containing \a p; false when outside the image.
+  bool
+  projectToPixel(const Eigen::Vector3f& p, int& col, int& row) const;
+
+  /// \brief The highest point of pixel (col, row): exactly the input point with that
+  /// index. False when the pixel is empty or outside the image.
+  bool
+  pixelToPoint(int col, int row, PointT& point) const;
+
+  /// \brief Input-cloud index of the highest point of pixel (col, row), or -1 when
+  /// the pixel is empty or outside the image.
+  int
+  pixelIndex(int col, int row) const;
+
+  /// \brief Nearest non-empty pixel to (col, row) within a square of \a radius_px
+  /// (Chebyshev rings, nearest Euclidean within the first ring that has one);
+  /// returns the input index or -1.
+  int
+  nearestPixelIndex(int col, int row, int radius_px) const;
+
+  /// \brief CV_8UC1 gray image: 0 = empty, 1..255 = max height (see heightToGray).
+  const cv::Mat&
+  image() const
+  {
+    return gray_image_;
+  }
+  /// \brief CV_32FC1 max height [m] per pixel; NaN where empty.
+  const cv::Mat&
+  heightImage() const
+  {
+    return height_image_;
+  }
+  /// \brief CV_32SC1 input index of the max-height point per pixel; -1 where empty.
+  const cv::Mat&
+  indexImage() const
+  {
+    return index_image_;
+  }
+
+  int
+  width() const
+  {
+    return params_.width();
+  }
+  int
+  height() const
+  {
+    return params_.height();
+  }
+  /// \brief Number of input points that fell inside the image.
+  std::size_t
+  numProjectedPoints() const
+  {
+    return num_projected_;
+  }
+  /// \brief Number of non-empty pixels.
+  std::size_t
+  numOccupiedPixels() const
+  {
+    return num_occupied_;
+  }
+
+private:
+  RangeRasterParams params_;
+  PointCloud::ConstPtr input_;
+  cv::Mat gray_image_, height_image_, index_image_;
+  std::size_t num_projected_ = 0;
+  std::size_t num_occupied_ = 0;
+  bool computed_ = false;
+};
+
+} // namespace rast
+} // namespace pcl

@@ -1,0 +1,280 @@
+/// \file test_sac_ground_removal.cpp
+/// \brief SACGroundRemoval on synthetic plane + boxes scenes and on a real KITTI scan.
+
+#include <pcl/segmentation/sac_ground_removal.h>
+#include <pcl/slam/sequence_reader.h>
+
+#include <gtest/gtest.h>
+
+#include "test_data.h"
+
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <set>
+#include <stdexcept>
+
+using pcl::rast::GroundRemovalResult;
+using pcl::rast::SACGroundRemoval;
+using pcl::rast::SACGroundRemovalParams;
+using Cloud = pcl::PointCloud<pcl::PointXYZI>;
+
+namespace {
+
+constexpr float kSensorHeight = 1.73f;
+
+pcl::PointXYZI
+makePoint(float x, float y, float z)
+{
+  pcl::PointXYZI p;
+  p.x = x;
+  p.y = y;
+  p.z = z;
+  p.intensity = 0.5f;
+  return p;
+}
+
+/// A flat road 1.73 m below the sensor (first \a num_ground points, 2 cm noise)
+/// followed by the surfaces of a few boxes standing on it, starting 0.3 m above it.
+Cloud::Ptr
+makePlaneAndBoxes(std::size_t num_ground, std::size_t num_per_box, unsigned seed)
+{
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> xy(-30.0f, 30.0f);
+  std::normal_distribution<float> noise(0.0f, 0.02f);
+  auto cloud = std::make_shared<Cloud>();
+  for (std::size_t i = 0; i < num_ground; ++i)
+    cloud->push_back(makePoint(xy(rng), xy(rng), -kSensorHeight + noise(rng)));
+  // Boxes: centre x, y, half sizes, height above ground.
+  const float boxes[][5] = {{8, 3, 2, 1, 1.5f}, {-6, -8, 1, 1, 2.5f}, {15, -10, 3, 1.5f, 1.8f},
+                            {-12, 12, 0.5f, 0.5f, 4.0f}};
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  for (const auto& b : boxes) {
+    for (std::size_t i = 0; i < num_per_box; ++i) {
+      // A random point on one of the four walls or the top.
+      const int face = static_cast<int>(unit(rng) * 5) % 5;
+      float x = b[0] + (2 * unit(rng) - 1) * b[2];
+      float y = b[1] + (2 * unit(rng) - 1) * b[3];
+      float z = -kSensorHeight + 0.3f + unit(rng) * (b[4] - 0.3f);
+      if (face == 0)
+        x = b[0] - b[2];
+      else if (face == 1)
+        x = b[0] + b[2];
+      else if (face == 2)
+        y = b[1] - b[3];
+      else if (face == 3)
+        y = b[1] + b[3];
+      else
+        z = -kSensorHeight + b[4];
+      cloud->push_back(makePoint(x, y, z));
+    }
+  }
+  return cloud;
+}
+
+Cloud::Ptr
+transformed(const Cloud& cloud, const Eigen::Matrix3f& R)
+{
+  auto out = std::make_shared<Cloud>(cloud);
+  for (auto& p : *out)
+    p.getVector3fMap() = R * p.getVector3fMap();
+  return out;
+}
+
+GroundRemovalResult
+segment(const Cloud::ConstPtr& cloud, const SACGroundRemovalParams& params = {})
+{
+  SACGroundRemoval ground(params);
+  ground.setInputCloud(cloud);
+  GroundRemovalResult result;
+  ground.segment(result);
+  return result;
+}
+
+} // namespace
+
+TEST(SACGroundRemoval, FindsGroundAndExactInliers)
+{
+  const std::size_t num_ground = 20000;
+  const auto cloud = makePlaneAndBoxes(num_ground, 2000, 1);
+  const auto result = segment(cloud);
+  ASSERT_TRUE(result.success) << result.message;
+  ASSERT_TRUE(result.ground_found) << result.message;
+  EXPECT_GT(result.plane_coefficients.z(), 0.9999f); // normal up
+  EXPECT_NEAR(result.plane_coefficients[3], kSensorHeight, 0.01f);
+  // Exactly the road points are ground; all box points are kept.
+  ASSERT_EQ(result.ground_indices.size(), num_ground);
+  for (std::size_t k = 0; k < num_ground; ++k)
+    EXPECT_EQ(result.ground_indices[k], static_cast<pcl::index_t>(k));
+  EXPECT_EQ(result.non_ground->size(), cloud->size() - num_ground);
+  EXPECT_EQ(result.non_ground_indices.size(), result.non_ground->size());
+  EXPECT_TRUE(result.T_level_lidar.matrix().isIdentity());
+  for (std::size_t k = 0; k < result.non_ground->size(); ++k)
+    EXPECT_EQ((*result.non_ground)[k].x, (*cloud)[result.non_ground_indices[k]].x);
+}
+
+TEST(SACGroundRemoval, IsDeterministic)
+{
+  const auto cloud = makePlaneAndBoxes(20000, 2000, 2);
+  const auto a = segment(cloud), b = segment(cloud);
+  EXPECT_EQ(a.plane_coefficients, b.plane_coefficients);
+  EXPECT_EQ(a.ground_indices, b.ground_indices);
+}
+
+TEST(SACGroundRemoval, LevelsTiltedCloud)
+{
+  const auto flat = makePlaneAndBoxes(20000, 2000, 3);
+  const Eigen::Matrix3f R_tilt =
+      Eigen::AngleAxisf(10.0f * float(M_PI) / 180.0f, Eigen::Vector3f::UnitX()).toRotationMatrix();
+  const auto tilted = transformed(*flat, R_tilt);
+
+  SACGroundRemovalParams params;
+  params.level_cloud = true;
+  const auto result = segment(tilted, params);
+  ASSERT_TRUE(result.ground_found) << result.message;
+  // The plane normal in the (tilted) LiDAR frame is the tilted z axis.
+  EXPECT_GT(result.plane_coefficients.head<3>().dot(R_tilt * Eigen::Vector3f::UnitZ()), 0.9999f);
+  // Levelling undoes the tilt: the levelled box points are the original ones.
+  ASSERT_EQ(result.non_ground->size(), flat->size() - 20000);
+  float max_error = 0.0f;
+  for (std::size_t k = 0; k < result.non_ground->size(); ++k) {
+    const auto& original = (*flat)[result.non_ground_indices[k]];
+    max_error = std::max(max_error, ((*result.non_ground)[k].getVector3fMap() -
+                                     original.getVector3fMap())
+                                        .norm());
+  }
+  EXPECT_LT(max_error, 0.03f);
+  const Eigen::Matrix3f R_expected = R_tilt.transpose();
+  EXPECT_TRUE(result.T_level_lidar.linear().isApprox(R_expected, 1e-3f));
+}
+
+TEST(SACGroundRemoval, StrongTiltNeedsUpAxisPrior)
+{
+  const auto flat = makePlaneAndBoxes(20000, 2000, 4);
+  const Eigen::Matrix3f R_tilt =
+      Eigen::AngleAxisf(35.0f * float(M_PI) / 180.0f, Eigen::Vector3f::UnitY()).toRotationMatrix();
+  const auto tilted = transformed(*flat, R_tilt);
+  // The default up axis (+z) allows 15 deg of tilt: a 35 deg road is not ground...
+  SACGroundRemovalParams params;
+  params.sample_max_height_m = 100.0; // sample everywhere: the prior below decides
+  EXPECT_FALSE(segment(tilted, params).ground_found);
+  // ...unless the expected up axis says so.
+  params.up_axis = R_tilt * Eigen::Vector3f::UnitZ();
+  const auto result = segment(tilted, params);
+  ASSERT_TRUE(result.ground_found) << result.message;
+  EXPECT_EQ(result.ground_indices.size(), 20000u);
+}
+
+TEST(SACGroundRemoval, ReportsSceneWithoutGround)
+{
+  // Boxes only, no road: the box tops are too small, the walls too steep.
+  auto boxes = makePlaneAndBoxes(0, 3000, 5);
+  const auto result = segment(boxes);
+  EXPECT_TRUE(result.success);
+  EXPECT_FALSE(result.ground_found);
+  EXPECT_FALSE(result.message.empty());
+  EXPECT_TRUE(result.ground_indices.empty());
+  EXPECT_EQ(result.non_ground->size(), boxes->size());
+  EXPECT_EQ(result.plane_coefficients, Eigen::Vector4f::Zero());
+
+  // A ceiling 2 m above the sensor is not ground either.
+  auto ceiling = std::make_shared<Cloud>();
+  std::mt19937 rng(6);
+  std::uniform_real_distribution<float> xy(-10.0f, 10.0f);
+  for (int i = 0; i < 5000; ++i)
+    ceiling->push_back(makePoint(xy(rng), xy(rng), 2.0f));
+  SACGroundRemovalParams params;
+  const auto r2 = segment(ceiling, params);
+  EXPECT_FALSE(r2.ground_found);
+  EXPECT_EQ(r2.non_ground->size(), ceiling->size());
+}
+
+TEST(SACGroundRemoval, EmptyAndNullInput)
+{
+  const auto result = segment(std::make_shared<Cloud>());
+  EXPECT_FALSE(result.success);
+  EXPECT_FALSE(result.ground_found);
+  EXPECT_FALSE(result.message.empty());
+  ASSERT_TRUE(result.non_ground);
+  EXPECT_TRUE(result.non_ground->empty());
+
+  SACGroundRemoval ground;
+  EXPECT_THROW(ground.setInputCloud(nullptr), std::invalid_argument);
+  GroundRemovalResult r;
+  EXPECT_THROW(ground.segment(r), std::invalid_argument);
+}
+
+TEST(SACGroundRemoval, SkipsNonFinitePoints)
+{
+  const std::size_t num_ground = 20000;
+  auto cloud = makePlaneAndBoxes(num_ground, 2000, 7);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const std::size_t num_finite = cloud->size();
+  for (int i = 0; i < 500; ++i)
+    cloud->push_back(makePoint(nan, 1.0f, i % 2 ? nan : -kSensorHeight));
+  cloud->push_back(makePoint(std::numeric_limits<float>::infinity(), 0.0f, -kSensorHeight));
+  cloud->is_dense = false;
+  const auto result = segment(cloud);
+  ASSERT_TRUE(result.ground_found) << result.message;
+  EXPECT_EQ(result.num_non_finite, 501u);
+  EXPECT_EQ(result.ground_indices.size(), num_ground);
+  EXPECT_EQ(result.ground_indices.size() + result.non_ground->size(), num_finite);
+  for (const auto& p : *result.non_ground)
+    EXPECT_TRUE(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z));
+
+  // Only non-finite points: processed, nothing found, no crash.
+  auto all_nan = std::make_shared<Cloud>();
+  all_nan->push_back(makePoint(nan, nan, nan));
+  const auto r2 = segment(all_nan);
+  EXPECT_FALSE(r2.success);
+  EXPECT_EQ(r2.num_non_finite, 1u);
+}
+
+TEST(SACGroundRemoval, ValidatesParams)
+{
+  SACGroundRemovalParams params;
+  std::string why;
+  EXPECT_TRUE(params.isValid(&why));
+  params.distance_threshold_m = 0.0;
+  EXPECT_FALSE(params.isValid(&why));
+  EXPECT_NE(why.find("distance_threshold_m"), std::string::npos);
+  EXPECT_THROW(SACGroundRemoval{params}, std::invalid_argument);
+  params = {};
+  params.max_tilt_deg = 90.0;
+  EXPECT_FALSE(params.isValid());
+  params = {};
+  params.up_axis = Eigen::Vector3f::Zero();
+  EXPECT_FALSE(params.isValid());
+  params = {};
+  params.max_iterations = 0;
+  EXPECT_FALSE(params.isValid());
+  params = {};
+  params.min_inlier_ratio = 1.5;
+  EXPECT_FALSE(params.isValid());
+}
+
+TEST(SACGroundRemoval, RealKittiScan)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  const auto cloud = pcl::rast::readScan((data / "kitti-raw-22/pcd/0000000000.pcd").string());
+  ASSERT_GT(cloud->size(), 100000u);
+  SACGroundRemoval ground;
+  ground.setInputCloud(cloud);
+  GroundRemovalResult result;
+  double best_ms = 1e9; // timing is informative only (the machine may be loaded)
+  for (int i = 0; i < 20; ++i) {
+    const auto start = std::chrono::steady_clock::now();
+    ground.segment(result);
+    best_ms = std::min(best_ms, std::chrono::duration<double, std::milli>(
+                                    std::chrono::steady_clock::now() - start)
+                                    .count());
+  }
+  std::cout << "[          ] " << cloud->size() << " points, best " << best_ms << " ms: "
+            << result.message << std::endl;
+  ASSERT_TRUE(result.ground_found) << result.message;
+  EXPECT_GT(result.plane_coefficients.z(), std::cos(3.0 * M_PI / 180.0));
+  EXPECT_NEAR(result.plane_coefficients[3], 1.73, 0.25); // KITTI: sensor 1.73 m above road
+  EXPECT_GT(result.ground_indices.size(), cloud->size() / 5);
+  EXPECT_LT(result.ground_indices.size(), cloud->size() * 4 / 5);
+}
