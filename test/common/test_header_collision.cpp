@@ -27,7 +27,7 @@ split(const std::string& text)
   std::vector<std::string> parts;
   std::stringstream stream(text);
   std::string part;
-  while (std::getline(stream, part, ';'))
+  while (std::getline(stream, part, '|'))
     if (!part.empty())
       parts.push_back(part);
   return parts;
