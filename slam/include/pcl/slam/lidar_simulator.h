@@ -1,0 +1,268 @@
+#pragma once
+/// \file lidar_simulator.h
+/// \brief A LiDAR sequence simulator: a procedural, deterministic world built around
+/// a trajectory (ground following the path's elevation, buildings, trees, poles,
+/// parked cars, walls and fences, optional moving cars) and ray-cast sensor models
+/// (Velodyne HDL-64E, VLP-16, Ouster OS1-64, handheld Ouster OS0-128).
+///
+/// Pipeline: trajectory (T_world_body) -> SimulatedWorld (built once, consistent for
+/// every pose) -> per frame: sensor pose T_world_sensor = T_world_body *
+/// T_body_sensor(t), one ray per beam and azimuth step, range noise / dropouts /
+/// intensity from a counter-based hash of (seed, frame, ray) so frame i never depends on
+/// other frames. \ingroup slam
+
+#include <Eigen/Core>
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+#include <pcl/slam/pose_io.h>
+#include <string>
+#include <vector>
+
+namespace pcl {
+namespace rast {
+
+/// \brief The simulated sensors.
+enum class SensorModel
+{
+  kHdl64,  ///< Velodyne HDL-64E as on KITTI: 64 beams +2..-24.8 deg, 2000 steps, 120 m
+  kVlp16,  ///< Velodyne VLP-16: 16 beams +-15 deg, 0.2 deg steps, 100 m
+  kOs1_64, ///< Ouster OS1-64: 64 beams +-16.6 deg, 1024 steps, 120 m
+  kOs0_128 ///< handheld Ouster OS0-128: 128 beams +-45 deg, 1024 steps, 50 m, tilted
+};
+
+/// \brief Built-in generated paths.
+enum class PathType
+{
+  kStraight,   ///< along +x
+  kLoop,       ///< a closed rounded-rectangle loop, driven ~1.15 times (revisit)
+  kFigureEight ///< a lemniscate of Gerono, driven ~1.1 times, crossing itself at 90 deg
+};
+
+/// \brief Parse "hdl64", "vlp16", "os1-64", "os0-128".
+/// \throws std::invalid_argument naming the bad value.
+SensorModel sensorModelFromString(const std::string& name);
+/// \brief The inverse of sensorModelFromString.
+std::string toString(SensorModel model);
+/// \brief Parse "straight", "loop", "eight".
+/// \throws std::invalid_argument naming the bad value.
+PathType pathTypeFromString(const std::string& name);
+/// \brief The inverse of pathTypeFromString.
+std::string toString(PathType type);
+
+/// \brief Geometry and error model of one sensor.
+struct SensorSpec
+{
+  std::vector<double> beam_elevations_rad; ///< one per beam, top to bottom
+  int azimuth_steps = 2000;                ///< columns per revolution
+  double min_range_m = 1.0;                ///< returns closer than this are dropped
+  double max_range_m = 120.0;              ///< no return beyond
+  double range_noise_std_m = 0.02;         ///< gaussian range noise (1 sigma)
+  double dropout_rate = 0.01;              ///< base probability of a missing return
+  double mount_height_m = 1.73;            ///< body origin height above the ground
+  bool handheld = false;                   ///< tilt and sway applied (T_body_sensor)
+  double tilt_pitch_rad = 0.0;             ///< handheld: nose-down pitch of the sensor
+  double sway_pitch_rad = 0.0;             ///< handheld: amplitude of the pitch sway
+  double sway_roll_rad = 0.0;              ///< handheld: amplitude of the roll sway
+  double sway_frequency_hz = 0.0; ///< handheld: pitch sway frequency (roll: half)
+
+  /// \brief Number of rays per frame (beams x azimuth steps).
+  std::size_t raysPerFrame() const
+  {
+    return beam_elevations_rad.size() * static_cast<std::size_t>(azimuth_steps);
+  }
+};
+
+/// \brief The built-in specification of \a model.
+SensorSpec sensorSpec(SensorModel model);
+
+/// \brief Mounting of the sensor on the body at time \a time_s: identity for vehicle
+/// sensors, tilt plus sway for the handheld one.
+Pose3d bodyToSensor(const SensorSpec& spec, double time_s);
+
+/// \brief Parameters of a generated path.
+struct PathParams
+{
+  PathType type = PathType::kLoop;
+  int num_frames = 200;               ///< poses generated
+  double speed_mps = 10.0;            ///< 10 m/s at 10 Hz: 1 m per frame, like KITTI
+  double rate_hz = 10.0;              ///< frames per second
+  double height_m = 1.73;             ///< body origin above the ground
+  double elevation_amplitude_m = 2.0; ///< gentle hills: +- this over ~300 m
+  double revisit_fraction = 0.15;     ///< loop/eight: extra fraction driven after closing
+
+  /// \brief True when every value is usable; otherwise \a why says which is not.
+  bool isValid(std::string* why = nullptr) const;
+};
+
+/// \brief Body poses T_world_body of a generated path (x forward, z up, following
+/// the terrain's slope). The first pose is at the origin heading along +x.
+/// \throws std::invalid_argument when \a params is invalid.
+PoseVector generatePath(const PathParams& params);
+
+/// \brief Parameters of the procedural world.
+struct WorldParams
+{
+  double corridor_half_width_m = 4.0;  ///< kept free of static objects around the path
+  double max_object_distance_m = 80.0; ///< objects are generated up to this from the path
+  double building_probability = 0.6;   ///< chance a 16 m lot holds a building
+  double open_fraction = 0.2;          ///< fraction of 64 m blocks without buildings
+  double tree_probability = 0.2;       ///< chance a roadside 4 m lot holds a tree
+  double pole_probability = 0.1;       ///< chance a roadside 4 m lot holds a pole
+  double parked_car_probability = 0.2; ///< chance a kerbside 5 m lot holds a car
+  double wall_probability = 0.2; ///< chance an 8 m lot beside the road holds a wall/fence
+  double ground_smoothing_m =
+      2.0;                    ///< softening length of the ground's blend of path heights
+  bool moving_cars = false;   ///< cars driving along the path (not static)
+  int num_moving_cars = 8;    ///< when moving_cars
+  double lane_offset_m = 3.0; ///< moving cars drive this far left of the path
+
+  bool isValid(std::string* why = nullptr) const;
+};
+
+/// \brief Result of casting one ray.
+struct RayHit
+{
+  double range_m = 0.0;       ///< distance along the unit ray
+  double cos_incidence = 1.0; ///< |cos| of the angle between ray and surface normal
+  float reflectivity = 0.0f;  ///< material reflectivity in [0, 1]
+  bool is_ground = false;     ///< hit the ground height field
+};
+
+/// \brief A static procedural world around a trajectory plus optional moving cars,
+/// with a 2D grid of analytic primitives (oriented boxes, vertical cylinders,
+/// ellipsoids) for fast ray casting. Deterministic for (params, trajectory, seed).
+class SimulatedWorld
+{
+public:
+  using Ptr = std::shared_ptr<SimulatedWorld>;
+  using ConstPtr = std::shared_ptr<const SimulatedWorld>;
+
+  /// \param[in] params world parameters
+  /// \param[in] T_world_body the trajectory the world is built around
+  /// \param[in] body_height_m height of the body origin above the ground
+  /// \param[in] seed random seed
+  /// \throws std::invalid_argument on invalid params or an empty trajectory.
+  SimulatedWorld(const WorldParams& params,
+                 const PoseVector& T_world_body,
+                 double body_height_m,
+                 std::uint64_t seed);
+  ~SimulatedWorld();
+  SimulatedWorld(const SimulatedWorld&) = delete;
+  SimulatedWorld& operator=(const SimulatedWorld&) = delete;
+
+  /// \brief Ground height at (x, y): a smooth field following the path's elevation.
+  double groundHeight(double x, double y) const;
+  /// \brief Horizontal distance from (x, y) to the nearest path sample (2 m grid,
+  /// accurate to ~1.5 m; exact path samples are every <= 1 m).
+  double distanceToPath(double x, double y) const;
+  /// \brief Number of static primitives.
+  std::size_t numPrimitives() const;
+
+  /// \brief Cast rays from \a origin along unit directions \a dirs (world frame)
+  /// at time \a time_s (moving cars). hits[k].range_m <= 0 means no return.
+  void castRays(const Eigen::Vector3d& origin,
+                const std::vector<Eigen::Vector3d>& dirs,
+                double max_range_m,
+                double time_s,
+                std::vector<RayHit>& hits) const;
+
+  /// \brief Cast one ray; false when nothing is hit within \a max_range_m.
+  bool castRay(const Eigen::Vector3d& origin,
+               const Eigen::Vector3d& dir,
+               double max_range_m,
+               double time_s,
+               RayHit& hit) const;
+
+private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// \brief Parameters of the simulator.
+struct LidarSimulatorParams
+{
+  SensorModel sensor = SensorModel::kHdl64;
+  WorldParams world;
+  std::uint64_t seed = 1;          ///< seeds the world and every frame's noise
+  double frame_period_s = 0.1;     ///< times when no timestamps are given
+  double range_noise_std_m = -1.0; ///< < 0: the sensor's default
+  double dropout_rate = -1.0;      ///< < 0: the sensor's default
+  int num_threads = 1;             ///< ray-casting threads (results do not depend on it)
+
+  bool isValid(std::string* why = nullptr) const;
+};
+
+/// \brief Output file format of writeSequence.
+enum class ScanFormat
+{
+  kBin, ///< DIR/velodyne/NNNNNN.bin, KITTI float32 x y z intensity
+  kPcd  ///< DIR/pcd/NNNNNN.pcd, binary PCD
+};
+
+/// \brief Called after each written frame with (frames done, frames total).
+using ProgressCallback = std::function<void(std::size_t, std::size_t)>;
+
+/// \brief Simulates a LiDAR sequence along a body trajectory.
+///
+/// \code
+/// pcl::rast::LidarSimulatorParams params;
+/// params.sensor = pcl::rast::SensorModel::kVlp16;
+/// pcl::rast::LidarSimulator sim(params, pcl::rast::generatePath({}));
+/// pcl::PointCloud<pcl::PointXYZI> cloud;
+/// sim.simulateFrame(0, cloud);               // sensor frame
+/// sim.writeSequence("out", pcl::rast::ScanFormat::kBin, 0, sim.numFrames() - 1);
+/// \endcode
+class LidarSimulator
+{
+public:
+  using Ptr = std::shared_ptr<LidarSimulator>;
+  using ConstPtr = std::shared_ptr<const LidarSimulator>;
+
+  /// \param[in] params simulator parameters
+  /// \param[in] T_world_body body poses (for vehicle sensors the LiDAR poses)
+  /// \param[in] timestamps_s one per pose, or empty for i * frame_period_s
+  /// \throws std::invalid_argument on invalid params, no poses or mismatched sizes.
+  LidarSimulator(const LidarSimulatorParams& params,
+                 const PoseVector& T_world_body,
+                 const std::vector<double>& timestamps_s = {});
+
+  std::size_t numFrames() const { return T_world_body_.size(); }
+  const SensorSpec& sensorSpec() const { return spec_; }
+  const SimulatedWorld& world() const { return *world_; }
+  double timestamp(std::size_t i) const;
+  /// \brief Ground-truth sensor pose T_world_sensor of frame \a i (includes the
+  /// handheld tilt and sway).
+  Pose3d sensorPose(std::size_t i) const;
+
+  /// \brief Simulate frame \a i into \a cloud (sensor frame, x y z intensity).
+  /// \throws std::out_of_range when \a i >= numFrames().
+  void simulateFrame(std::size_t i, pcl::PointCloud<pcl::PointXYZI>& cloud) const;
+
+  /// \brief Write frames first, first + every, ..., <= last as a KITTI-like sequence:
+  /// DIR/velodyne/000000.bin... (or DIR/pcd/000000.pcd), DIR/poses.txt (sensor
+  /// poses re-based so the first written pose is the identity) and DIR/times.txt
+  /// (timestamps relative to the first written frame).
+  /// \return the number of frames written.
+  /// \throws std::invalid_argument on a bad range, std::runtime_error on I/O failure.
+  std::size_t writeSequence(const std::string& dir,
+                            ScanFormat format,
+                            std::size_t first,
+                            std::size_t last,
+                            std::size_t every = 1,
+                            const ProgressCallback& progress = {}) const;
+
+private:
+  LidarSimulatorParams params_;
+  SensorSpec spec_;
+  PoseVector T_world_body_;
+  std::vector<double> timestamps_s_;
+  std::vector<Eigen::Vector3d> ray_dirs_sensor_; ///< column-major: azimuth, then beam
+  std::shared_ptr<const SimulatedWorld> world_;
+};
+
+} // namespace rast
+} // namespace pcl

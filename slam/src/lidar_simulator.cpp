@@ -1,0 +1,563 @@
+/// \file lidar_simulator.cpp
+/// \brief Sensor models, generated paths and LidarSimulator (frames and sequences).
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <pcl/io/pcd_io.h>
+#include <pcl/slam/lidar_simulator.h>
+#include <pcl/slam/sequence_reader.h> // writeKittiBin
+#include <sstream>
+#include <stdexcept>
+#include <thread>
+
+namespace pcl {
+namespace rast {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+double
+deg(double d)
+{
+  return d * kPi / 180.0;
+}
+
+std::uint64_t
+splitmix64(std::uint64_t x)
+{
+  x += 0x9E3779B97F4A7C15ULL;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ULL;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBULL;
+  return x ^ (x >> 31);
+}
+
+/// Counter-based random numbers: the noise of ray k of frame i is a hash of
+/// (seed, i, k) and depends on nothing else. Each 64-bit hash gives two uniforms.
+std::uint64_t
+frameKey(std::uint64_t seed, std::uint64_t frame)
+{
+  return splitmix64(splitmix64(seed ^ 0x5EED5EED5EED5EEDULL) ^ frame);
+}
+
+void
+rayUniforms(std::uint64_t frame_key, std::uint64_t ray, double u[4])
+{
+  std::uint64_t h = splitmix64(frame_key ^ (ray * 0xD1B54A32D192ED03ULL));
+  for (int k = 0; k < 4; k += 2) {
+    u[k] = (static_cast<double>(h >> 32) + 0.5) * 0x1.0p-32;
+    u[k + 1] = (static_cast<double>(h & 0xFFFFFFFFULL) + 0.5) * 0x1.0p-32;
+    h = splitmix64(h);
+  }
+}
+
+/// Standard normal quantile of u in (0, 1) from a 4096-entry table of the inverse
+/// CDF (linear between entries, tails clipped at ~3.5 sigma): deterministic and cheap.
+double
+gaussianFromUniform(double u)
+{
+  constexpr int kSize = 4096;
+  static const std::vector<double> table = [] {
+    std::vector<double> t(kSize + 1);
+    for (int k = 0; k <= kSize; ++k) {
+      const double p = (k + 0.5) / (kSize + 1.0);
+      double lo = -10.0, hi = 10.0; // bisection on Phi(x) = erfc(-x / sqrt 2) / 2
+      for (int it = 0; it < 80; ++it) {
+        const double mid = 0.5 * (lo + hi);
+        (0.5 * std::erfc(-mid / std::sqrt(2.0)) < p ? lo : hi) = mid;
+      }
+      t[k] = 0.5 * (lo + hi);
+    }
+    return t;
+  }();
+  const double f = u * kSize;
+  const int k = std::min(kSize - 1, static_cast<int>(f));
+  return table[k] + (f - k) * (table[k + 1] - table[k]);
+}
+
+std::vector<double>
+linearBeams(int n, double top_deg, double bottom_deg)
+{
+  std::vector<double> b(n);
+  for (int k = 0; k < n; ++k)
+    b[k] = deg(top_deg + (bottom_deg - top_deg) * k / std::max(1, n - 1));
+  return b;
+}
+
+// ---- generated paths ----
+
+/// Gentle hills: h(x, y) with h(0, 0) = 0 and slopes below ~4 % for A = 2 m.
+double
+elevation(double A, double x, double y, double* gx, double* gy)
+{
+  const double kx = 2 * kPi / 320.0, ky = 2 * kPi / 260.0, ph = 0.3;
+  *gx = A * kx * std::cos(kx * x + ph) * std::cos(ky * y);
+  *gy = -A * ky * std::sin(kx * x + ph) * std::sin(ky * y);
+  return A * (std::sin(kx * x + ph) * std::cos(ky * y) - std::sin(ph));
+}
+
+/// A dense closed or open 2D polyline with cumulative arc length.
+struct Polyline
+{
+  std::vector<Eigen::Vector2d> p;
+  std::vector<double> s;
+
+  void finish()
+  {
+    s.assign(p.size(), 0.0);
+    for (std::size_t k = 1; k < p.size(); ++k)
+      s[k] = s[k - 1] + (p[k] - p[k - 1]).norm();
+  }
+  Eigen::Vector2d at(double v) const
+  {
+    const auto it = std::upper_bound(s.begin(), s.end(), v);
+    if (it == s.begin())
+      return p.front();
+    if (it == s.end())
+      return p.back();
+    const std::size_t k = static_cast<std::size_t>(it - s.begin());
+    const double f = (v - s[k - 1]) / std::max(1e-12, s[k] - s[k - 1]);
+    return p[k - 1] + f * (p[k] - p[k - 1]);
+  }
+};
+
+} // namespace
+
+// ---- names ----
+
+SensorModel
+sensorModelFromString(const std::string& name)
+{
+  if (name == "hdl64")
+    return SensorModel::kHdl64;
+  if (name == "vlp16")
+    return SensorModel::kVlp16;
+  if (name == "os1-64")
+    return SensorModel::kOs1_64;
+  if (name == "os0-128")
+    return SensorModel::kOs0_128;
+  throw std::invalid_argument("sensorModelFromString: unknown sensor '" + name +
+                              "' (hdl64, vlp16, os1-64, os0-128)");
+}
+
+std::string
+toString(SensorModel model)
+{
+  switch (model) {
+  case SensorModel::kHdl64:
+    return "hdl64";
+  case SensorModel::kVlp16:
+    return "vlp16";
+  case SensorModel::kOs1_64:
+    return "os1-64";
+  case SensorModel::kOs0_128:
+    return "os0-128";
+  }
+  return "unknown";
+}
+
+PathType
+pathTypeFromString(const std::string& name)
+{
+  if (name == "straight")
+    return PathType::kStraight;
+  if (name == "loop")
+    return PathType::kLoop;
+  if (name == "eight")
+    return PathType::kFigureEight;
+  throw std::invalid_argument("pathTypeFromString: unknown path '" + name +
+                              "' (straight, loop, eight)");
+}
+
+std::string
+toString(PathType type)
+{
+  switch (type) {
+  case PathType::kStraight:
+    return "straight";
+  case PathType::kLoop:
+    return "loop";
+  case PathType::kFigureEight:
+    return "eight";
+  }
+  return "unknown";
+}
+
+// ---- sensors ----
+
+SensorSpec
+sensorSpec(SensorModel model)
+{
+  SensorSpec s;
+  switch (model) {
+  case SensorModel::kHdl64: {
+    // Two laser blocks as on the real unit: 1/3 deg spacing above -8.33 deg, ~1/2 below.
+    s.beam_elevations_rad = linearBeams(32, 2.0, -8.33);
+    const auto lower = linearBeams(32, -8.83, -24.8);
+    s.beam_elevations_rad.insert(s.beam_elevations_rad.end(), lower.begin(), lower.end());
+    s.azimuth_steps = 2000;
+    s.min_range_m = 2.0;
+    s.max_range_m = 120.0;
+    s.range_noise_std_m = 0.02;
+    s.dropout_rate = 0.01;
+    s.mount_height_m = 1.73;
+    break;
+  }
+  case SensorModel::kVlp16:
+    s.beam_elevations_rad = linearBeams(16, 15.0, -15.0);
+    s.azimuth_steps = 1800;
+    s.min_range_m = 1.0;
+    s.max_range_m = 100.0;
+    s.range_noise_std_m = 0.03;
+    s.dropout_rate = 0.01;
+    s.mount_height_m = 1.73;
+    break;
+  case SensorModel::kOs1_64:
+    s.beam_elevations_rad = linearBeams(64, 16.6, -16.6);
+    s.azimuth_steps = 1024;
+    s.min_range_m = 0.8;
+    s.max_range_m = 120.0;
+    s.range_noise_std_m = 0.015;
+    s.dropout_rate = 0.005;
+    s.mount_height_m = 1.73;
+    break;
+  case SensorModel::kOs0_128:
+    s.beam_elevations_rad = linearBeams(128, 45.0, -45.0);
+    s.azimuth_steps = 1024;
+    s.min_range_m = 0.5;
+    s.max_range_m = 50.0;
+    s.range_noise_std_m = 0.02;
+    s.dropout_rate = 0.01;
+    s.mount_height_m = 1.5;
+    s.handheld = true;
+    s.tilt_pitch_rad = deg(25.0);
+    s.sway_pitch_rad = deg(3.0);
+    s.sway_roll_rad = deg(2.0);
+    s.sway_frequency_hz = 0.9;
+    break;
+  }
+  return s;
+}
+
+Pose3d
+bodyToSensor(const SensorSpec& spec, double time_s)
+{
+  Pose3d T = Pose3d::Identity();
+  if (!spec.handheld)
+    return T;
+  // Positive pitch about y turns x towards -z: the sensor looks down ahead. The sway
+  // follows a walking cadence: pitch at f, roll at f/2.
+  const double w = 2 * kPi * spec.sway_frequency_hz * time_s;
+  const double pitch = spec.tilt_pitch_rad + spec.sway_pitch_rad * std::sin(w);
+  const double roll = spec.sway_roll_rad * std::sin(0.5 * w + 0.7);
+  T.linear() = (Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX()))
+                   .toRotationMatrix();
+  return T;
+}
+
+// ---- paths ----
+
+bool
+PathParams::isValid(std::string* why) const
+{
+  auto fail = [why](const std::string& msg) {
+    if (why)
+      *why = "PathParams: " + msg;
+    return false;
+  };
+  if (num_frames < 1 || num_frames > 10000000)
+    return fail("num_frames must be in [1, 1e7], got " + std::to_string(num_frames));
+  if (!(speed_mps >= 0.0 && speed_mps <= 100.0))
+    return fail("speed_mps must be in [0, 100], got " + std::to_string(speed_mps));
+  if (!(rate_hz > 0.0 && rate_hz <= 1000.0))
+    return fail("rate_hz must be in (0, 1000], got " + std::to_string(rate_hz));
+  if (!(height_m >= 0.0 && height_m <= 20.0))
+    return fail("height_m must be in [0, 20], got " + std::to_string(height_m));
+  if (!(elevation_amplitude_m >= 0.0 && elevation_amplitude_m <= 50.0))
+    return fail("elevation_amplitude_m must be in [0, 50]");
+  if (!(revisit_fraction >= 0.0 && revisit_fraction <= 1.0))
+    return fail("revisit_fraction must be in [0, 1]");
+  return true;
+}
+
+PoseVector
+generatePath(const PathParams& params)
+{
+  std::string why;
+  if (!params.isValid(&why))
+    throw std::invalid_argument("generatePath: " + why);
+  const double step = params.speed_mps / params.rate_hz;
+  const double driven = step * (params.num_frames - 1);
+
+  // Unit-size dense shape, scaled so that the driven length covers it 1 + revisit times.
+  Polyline line;
+  bool closed = params.type != PathType::kStraight;
+  if (params.type == PathType::kStraight) {
+    line.p = {Eigen::Vector2d(0, 0), Eigen::Vector2d(std::max(driven, 1e-6), 0)};
+  } else {
+    const int n = 20000;
+    for (int k = 0; k <= n; ++k) {
+      const double t = 2 * kPi * k / n;
+      if (params.type == PathType::kLoop) {
+        // Superellipse |x/a|^4 + |y/b|^4 = 1 (a rounded rectangle), from its bottom
+        // middle.
+        const double phi = t - kPi / 2;
+        const double c = std::cos(phi), s = std::sin(phi);
+        line.p.emplace_back(1.6 * std::copysign(std::sqrt(std::abs(c)), c),
+                            std::copysign(std::sqrt(std::abs(s)), s) + 1.0);
+      } else {
+        // Lemniscate of Gerono, rotated so that it starts along +x.
+        const Eigen::Vector2d q(std::sin(t), std::sin(t) * std::cos(t));
+        line.p.push_back(Eigen::Rotation2Dd(-kPi / 4) * q);
+      }
+    }
+  }
+  const Eigen::Vector2d start = line.p.front(); // exactly at the origin
+  for (auto& p : line.p)
+    p -= start;
+  line.finish();
+  if (closed) {
+    const double perimeter = std::max(driven / (1.0 + params.revisit_fraction), 1e-6);
+    const double scale = perimeter / line.s.back();
+    for (auto& p : line.p)
+      p *= scale;
+    line.finish();
+  }
+
+  PoseVector poses;
+  poses.reserve(params.num_frames);
+  const double A = params.elevation_amplitude_m;
+  const double ds = std::min(0.5, std::max(1e-3, 0.25 * line.s.back()));
+  for (int i = 0; i < params.num_frames; ++i) {
+    double s = step * i;
+    if (closed)
+      s = std::fmod(s, line.s.back());
+    const Eigen::Vector2d p = line.at(s);
+    const Eigen::Vector2d ahead = closed ? line.at(std::fmod(s + ds, line.s.back()))
+                                         : line.at(std::min(s + ds, line.s.back()));
+    Eigen::Vector2d dir = ahead - p;
+    if (dir.norm() < 1e-9)
+      dir = p - line.at(std::max(0.0, s - ds));
+    const double yaw = dir.norm() < 1e-9 ? 0.0 : std::atan2(dir.y(), dir.x());
+    double gx, gy;
+    const double h = elevation(A, p.x(), p.y(), &gx, &gy);
+    // Follow the terrain: z along its normal, x along the heading.
+    const Eigen::Vector3d z = Eigen::Vector3d(-gx, -gy, 1.0).normalized();
+    Eigen::Vector3d x(std::cos(yaw), std::sin(yaw), 0.0);
+    x = (x - x.dot(z) * z).normalized();
+    Pose3d T = Pose3d::Identity();
+    T.linear().col(0) = x;
+    T.linear().col(1) = z.cross(x);
+    T.linear().col(2) = z;
+    T.translation() = Eigen::Vector3d(p.x(), p.y(), h + params.height_m);
+    poses.push_back(T);
+  }
+  return poses;
+}
+
+// ---- simulator ----
+
+bool
+LidarSimulatorParams::isValid(std::string* why) const
+{
+  auto fail = [why](const std::string& msg) {
+    if (why)
+      *why = "LidarSimulatorParams: " + msg;
+    return false;
+  };
+  if (!world.isValid(why))
+    return false;
+  if (!(frame_period_s > 0.0 && frame_period_s < 1e3))
+    return fail("frame_period_s must be in (0, 1000)");
+  if (!(range_noise_std_m < 1.0))
+    return fail("range_noise_std_m must be < 1 (negative: sensor default)");
+  if (!(dropout_rate < 1.0))
+    return fail("dropout_rate must be < 1 (negative: sensor default)");
+  if (num_threads < 1 || num_threads > 256)
+    return fail("num_threads must be in [1, 256], got " + std::to_string(num_threads));
+  return true;
+}
+
+LidarSimulator::LidarSimulator(const LidarSimulatorParams& params,
+                               const PoseVector& T_world_body,
+                               const std::vector<double>& timestamps_s)
+    : params_(params), spec_(::pcl::rast::sensorSpec(params.sensor)),
+      T_world_body_(T_world_body), timestamps_s_(timestamps_s)
+{
+  std::string why;
+  if (!params.isValid(&why))
+    throw std::invalid_argument("LidarSimulator: " + why);
+  if (T_world_body.empty())
+    throw std::invalid_argument("LidarSimulator: empty trajectory");
+  if (!timestamps_s.empty() && timestamps_s.size() != T_world_body.size())
+    throw std::invalid_argument("LidarSimulator: " + std::to_string(timestamps_s.size()) +
+                                " timestamps for " + std::to_string(T_world_body.size()) +
+                                " poses");
+  if (params.range_noise_std_m >= 0.0)
+    spec_.range_noise_std_m = params.range_noise_std_m;
+  if (params.dropout_rate >= 0.0)
+    spec_.dropout_rate = params.dropout_rate;
+
+  const int beams = static_cast<int>(spec_.beam_elevations_rad.size());
+  ray_dirs_sensor_.reserve(spec_.raysPerFrame());
+  for (int a = 0; a < spec_.azimuth_steps; ++a) {
+    const double az = 2 * kPi * a / spec_.azimuth_steps;
+    for (int b = 0; b < beams; ++b) {
+      const double el = spec_.beam_elevations_rad[b];
+      ray_dirs_sensor_.emplace_back(
+          std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
+    }
+  }
+  world_ = std::make_shared<SimulatedWorld>(
+      params.world, T_world_body_, spec_.mount_height_m, params.seed);
+}
+
+double
+LidarSimulator::timestamp(std::size_t i) const
+{
+  if (i >= numFrames())
+    throw std::out_of_range("LidarSimulator::timestamp: frame " + std::to_string(i) +
+                            " of " + std::to_string(numFrames()));
+  return timestamps_s_.empty() ? params_.frame_period_s * static_cast<double>(i)
+                               : timestamps_s_[i];
+}
+
+Pose3d
+LidarSimulator::sensorPose(std::size_t i) const
+{
+  return T_world_body_.at(i) * bodyToSensor(spec_, timestamp(i));
+}
+
+void
+LidarSimulator::simulateFrame(std::size_t i, pcl::PointCloud<pcl::PointXYZI>& cloud) const
+{
+  if (i >= numFrames())
+    throw std::out_of_range("LidarSimulator::simulateFrame: frame " + std::to_string(i) +
+                            " of " + std::to_string(numFrames()));
+  const Pose3d T_world_sensor = sensorPose(i);
+  const double time_s = timestamp(i);
+  const Eigen::Matrix3d R = T_world_sensor.linear();
+  const Eigen::Vector3d origin = T_world_sensor.translation();
+  const std::size_t n = ray_dirs_sensor_.size();
+
+  // 1. Cast all rays, split into contiguous chunks (threads only change speed).
+  std::vector<RayHit> hits(n);
+  const std::size_t chunks = static_cast<std::size_t>(params_.num_threads);
+  auto castChunk = [&](std::size_t c) {
+    const std::size_t lo = n * c / chunks, hi = n * (c + 1) / chunks;
+    std::vector<Eigen::Vector3d> dirs(hi - lo);
+    for (std::size_t k = lo; k < hi; ++k)
+      dirs[k - lo] = R * ray_dirs_sensor_[k];
+    std::vector<RayHit> part;
+    world_->castRays(origin, dirs, spec_.max_range_m, time_s, part);
+    std::copy(part.begin(), part.end(), hits.begin() + lo);
+  };
+  if (chunks == 1) {
+    std::vector<Eigen::Vector3d> dirs(n);
+    for (std::size_t k = 0; k < n; ++k)
+      dirs[k] = R * ray_dirs_sensor_[k];
+    world_->castRays(origin, dirs, spec_.max_range_m, time_s, hits);
+  } else {
+    std::vector<std::thread> pool;
+    for (std::size_t c = 0; c < chunks; ++c)
+      pool.emplace_back(castChunk, c);
+    for (auto& t : pool)
+      t.join();
+  }
+
+  // 2. Sensor effects per ray from a hash of (seed, frame, ray): range noise,
+  // dropouts (more at long range and grazing incidence), intensity from the
+  // material's reflectivity, the incidence angle and the range.
+  cloud.clear();
+  cloud.reserve(n);
+  const double max_r = spec_.max_range_m;
+  const std::uint64_t frame_key = frameKey(params_.seed, i);
+  for (std::size_t k = 0; k < n; ++k) {
+    const RayHit& h = hits[k];
+    if (h.range_m <= 0.0)
+      continue;
+    double u[4];
+    rayUniforms(frame_key, k, u);
+    const double rel = h.range_m / max_r;
+    const double p_drop = spec_.dropout_rate * (1.0 + 3.0 * rel * rel) +
+                          (h.cos_incidence < 0.05 ? 0.3 : 0.0);
+    if (u[0] < p_drop)
+      continue;
+    const double gauss = gaussianFromUniform(u[1]);
+    const double range = h.range_m + spec_.range_noise_std_m * gauss;
+    if (range < spec_.min_range_m || range > max_r)
+      continue;
+    const double intensity =
+        h.reflectivity * (0.3 + 0.7 * h.cos_incidence) * (1.0 - 0.3 * rel) +
+        0.03 * (u[2] - 0.5);
+    const Eigen::Vector3d p = range * ray_dirs_sensor_[k];
+    pcl::PointXYZI pt;
+    pt.x = static_cast<float>(p.x());
+    pt.y = static_cast<float>(p.y());
+    pt.z = static_cast<float>(p.z());
+    pt.intensity = static_cast<float>(std::clamp(intensity, 0.0, 1.0));
+    cloud.push_back(pt);
+  }
+  cloud.width = static_cast<std::uint32_t>(cloud.size());
+  cloud.height = 1;
+  cloud.is_dense = true;
+}
+
+std::size_t
+LidarSimulator::writeSequence(const std::string& dir,
+                              ScanFormat format,
+                              std::size_t first,
+                              std::size_t last,
+                              std::size_t every,
+                              const ProgressCallback& progress) const
+{
+  if (first > last || last >= numFrames() || every < 1)
+    throw std::invalid_argument(
+        "LidarSimulator::writeSequence: bad range first=" + std::to_string(first) +
+        " last=" + std::to_string(last) + " every=" + std::to_string(every) + " for " +
+        std::to_string(numFrames()) + " frames");
+  namespace fs = std::filesystem;
+  const fs::path scan_dir =
+      fs::path(dir) / (format == ScanFormat::kBin ? "velodyne" : "pcd");
+  std::error_code ec;
+  fs::create_directories(scan_dir, ec);
+  if (ec)
+    throw std::runtime_error("LidarSimulator::writeSequence: cannot create '" +
+                             scan_dir.string() + "': " + ec.message());
+
+  const std::size_t total = (last - first) / every + 1;
+  const Pose3d T_sensor0_world = sensorPose(first).inverse();
+  PoseVector poses;
+  std::ostringstream times;
+  pcl::PointCloud<pcl::PointXYZI> cloud;
+  for (std::size_t k = 0; k < total; ++k) {
+    const std::size_t i = first + k * every;
+    simulateFrame(i, cloud);
+    char name[32];
+    std::snprintf(
+        name, sizeof(name), "%06zu.%s", k, format == ScanFormat::kBin ? "bin" : "pcd");
+    const std::string path = (scan_dir / name).string();
+    if (format == ScanFormat::kBin) {
+      writeKittiBin(path, cloud);
+    } else if (pcl::io::savePCDFileBinary(path, cloud) < 0) {
+      throw std::runtime_error("LidarSimulator::writeSequence: cannot write '" + path +
+                               "'");
+    }
+    poses.push_back(k == 0 ? Pose3d::Identity()
+                           : Pose3d(T_sensor0_world * sensorPose(i)));
+    char line[64];
+    std::snprintf(line, sizeof(line), "%e\n", timestamp(i) - timestamp(first));
+    times << line;
+    if (progress)
+      progress(k + 1, total);
+  }
+  writeKittiPoses((fs::path(dir) / "poses.txt").string(), poses);
+  writeFileAtomically((fs::path(dir) / "times.txt").string(), times.str());
+  return total;
+}
+
+} // namespace rast
+} // namespace pcl

@@ -1,0 +1,158 @@
+/// \file test_simulate_tool.cpp
+/// \brief The command-line contract of pcl_rast_simulate: files written, first pose
+/// identity, frame selection, formats, exit codes on bad arguments.
+
+#include "test_data.h"
+
+#include <cstdlib>
+#include <fstream>
+#include <pcl/slam/pose_io.h>
+#include <string>
+#include <sys/wait.h>
+#include <vector>
+
+namespace {
+
+namespace fs = std::filesystem;
+
+/// Run the tool with \a args (stdout/stderr to a log in \a dir); returns its exit code.
+int
+runSimulate(const std::string& args, const fs::path& log)
+{
+  const std::string tool = pcl_rast_test::toolPath("pcl_rast_simulate");
+  if (!fs::exists(tool))
+    return -100;
+  const std::string cmd = "'" + tool + "' " + args + " > '" + log.string() + "' 2>&1";
+  const int status = std::system(cmd.c_str());
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+std::size_t
+countLines(const fs::path& path)
+{
+  std::ifstream in(path);
+  std::size_t n = 0;
+  for (std::string line; std::getline(in, line);)
+    n += !line.empty();
+  return n;
+}
+
+std::size_t
+countFiles(const fs::path& dir)
+{
+  if (!fs::is_directory(dir))
+    return 0;
+  return static_cast<std::size_t>(std::distance(fs::directory_iterator(dir), {}));
+}
+
+class SimulateTool : public ::testing::Test
+{
+protected:
+  void SetUp() override
+  {
+    if (!fs::exists(pcl_rast_test::toolPath("pcl_rast_simulate")))
+      FAIL() << "pcl_rast_simulate is not built: build the tools target first";
+    dir_ = pcl_rast_test::makeTempDir("simulate_tool");
+    log_ = dir_ / "log.txt";
+  }
+  std::string out(const std::string& name = "seq") const
+  {
+    return "'" + (dir_ / name).string() + "'";
+  }
+  fs::path dir_, log_;
+};
+
+TEST_F(SimulateTool, GeneratedPathWritesKittiLayout)
+{
+  ASSERT_EQ(runSimulate("-path straight -frames 6 -sensor vlp16 -output " + out(), log_),
+            0);
+  const fs::path seq = dir_ / "seq";
+  EXPECT_EQ(countFiles(seq / "velodyne"), 6u);
+  EXPECT_TRUE(fs::exists(seq / "velodyne" / "000000.bin"));
+  EXPECT_TRUE(fs::exists(seq / "velodyne" / "000005.bin"));
+  EXPECT_GT(fs::file_size(seq / "velodyne" / "000003.bin"), 16u * 5000u);
+  EXPECT_EQ(countLines(seq / "times.txt"), 6u);
+  const auto traj = pcl::rast::readTrajectory((seq / "poses.txt").string());
+  ASSERT_EQ(traj.poses.size(), 6u);
+  EXPECT_TRUE(traj.poses[0].isApprox(pcl::rast::Pose3d::Identity(), 1e-9));
+  // 10 m/s at 10 Hz along the LiDAR's x axis.
+  EXPECT_NEAR(traj.poses[5].translation().x(), 5.0, 0.1);
+}
+
+TEST_F(SimulateTool, SelectionFormatAndSeed)
+{
+  ASSERT_EQ(
+      runSimulate("-path loop -frames 40 -sensor os1-64 -first 10 -last 20 -every 5 "
+                  "-format pcd -seed 3 -output " +
+                      out("a"),
+                  log_),
+      0);
+  EXPECT_EQ(countFiles(dir_ / "a" / "pcd"), 3u);
+  EXPECT_TRUE(fs::exists(dir_ / "a" / "pcd" / "000002.pcd"));
+  EXPECT_EQ(countLines(dir_ / "a" / "poses.txt"), 3u);
+  EXPECT_EQ(countLines(dir_ / "a" / "times.txt"), 3u);
+
+  // Same seed -> same bytes; frame 15 alone equals frame 15 of the run above.
+  ASSERT_EQ(
+      runSimulate("-path loop -frames 40 -sensor os1-64 -first 15 -last 15 -format pcd "
+                  "-seed 3 -output " +
+                      out("b"),
+                  log_),
+      0);
+  std::ifstream a(dir_ / "a" / "pcd" / "000001.pcd", std::ios::binary);
+  std::ifstream b(dir_ / "b" / "pcd" / "000000.pcd", std::ios::binary);
+  const std::string sa((std::istreambuf_iterator<char>(a)), {});
+  const std::string sb((std::istreambuf_iterator<char>(b)), {});
+  EXPECT_FALSE(sa.empty());
+  EXPECT_EQ(sa, sb);
+}
+
+TEST_F(SimulateTool, HandheldAndMovingCars)
+{
+  ASSERT_EQ(
+      runSimulate("-path eight -frames 5 -sensor os0-128 -moving-cars -output " + out(),
+                  log_),
+      0);
+  EXPECT_EQ(countFiles(dir_ / "seq" / "velodyne"), 5u);
+  EXPECT_EQ(countLines(dir_ / "seq" / "poses.txt"), 5u);
+}
+
+TEST_F(SimulateTool, BadArgumentsExitOne)
+{
+  const std::string o = " -output " + out();
+  EXPECT_EQ(runSimulate("-path loop -frames 3 -bogus" + o, log_), 1);
+  EXPECT_EQ(runSimulate("-frames 3" + o, log_), 1);              // neither
+  EXPECT_EQ(runSimulate("-path loop -traj x.txt" + o, log_), 1); // both
+  EXPECT_EQ(runSimulate("-path circle" + o, log_), 1);           // bad choice
+  EXPECT_EQ(runSimulate("-path loop -sensor hdl32" + o, log_), 1);
+  EXPECT_EQ(runSimulate("-path loop -format ply" + o, log_), 1);
+  EXPECT_EQ(runSimulate("-path loop -frames 5 -first 3 -last 1" + o, log_), 1);
+  EXPECT_EQ(runSimulate("-path loop -frames 5 -last 5" + o, log_), 1);
+  EXPECT_EQ(runSimulate("-path loop -frames abc" + o, log_), 1);
+  EXPECT_EQ(runSimulate("-path loop -frames 0" + o, log_), 1);
+  EXPECT_EQ(runSimulate("-path loop -every 0" + o, log_), 1);
+  EXPECT_EQ(runSimulate("-path loop", log_), 1); // no -output
+  EXPECT_EQ(runSimulate("-h", log_), 0);
+  EXPECT_EQ(runSimulate("-traj '" + (dir_ / "missing.txt").string() + "'" + o, log_), 2);
+  EXPECT_FALSE(fs::exists(dir_ / "seq" / "poses.txt"));
+}
+
+TEST_F(SimulateTool, KittiGroundTruthTrajectory)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  const std::string gt = "'" + (data / "kitti-gt-poses" / "07.txt").string() + "'";
+  ASSERT_EQ(
+      runSimulate("-traj " + gt + " -first 100 -last 104 -sensor vlp16 -output " + out(),
+                  log_),
+      0);
+  EXPECT_EQ(countFiles(dir_ / "seq" / "velodyne"), 5u);
+  const auto traj = pcl::rast::readTrajectory((dir_ / "seq" / "poses.txt").string());
+  ASSERT_EQ(traj.poses.size(), 5u);
+  EXPECT_TRUE(traj.poses[0].isApprox(pcl::rast::Pose3d::Identity(), 1e-9));
+  // LiDAR frame: the car drives along x (camera frame would be z).
+  const Eigen::Vector3d t = traj.poses[4].translation();
+  EXPECT_GT(std::abs(t.x()), 2.0 * std::abs(t.z()));
+  EXPECT_EQ(countLines(dir_ / "seq" / "times.txt"), 5u);
+}
+
+} // namespace
