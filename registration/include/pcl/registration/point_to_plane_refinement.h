@@ -1,7 +1,8 @@
 #pragma once
 /// \file point_to_plane_refinement.h
-/// \brief Dense refinement: robust point-to-plane ICP of a voxelized source scan against
-/// a prepared target (voxelized scan or local map with normals, kd-tree built once).
+/// \brief Dense refinement: robust plane-to-plane (GICP-style) or point-to-plane ICP of a
+/// voxelized source scan against a prepared target (voxelized scan or local map with
+/// normals, indexed once in a voxel hash map). See doc/registration.md for the choices.
 /// \ingroup registration
 
 #include <pcl/point_cloud.h>
@@ -30,6 +31,17 @@ enum class RobustKernel
   kGemanMcClure ///< w = (s^2 / (s^2 + r^2))^2
 };
 
+/// \brief Cost minimised by the refinement.
+enum class RefinementCost
+{
+  /// r = n_q . (T p - q): the classic point-to-plane distance (source normals unused).
+  kPointToPlane,
+  /// GICP with plane-normalised covariances (small_gicp's default): e = T p - q weighted
+  /// by (C_q + R C_p R^T)^-1, C = I - (1 - eps) n n^T. Uses the source normals too; falls
+  /// back to point-to-plane for a source without normals.
+  kPlaneToPlane
+};
+
 /// \brief Parameters of point-to-plane refinement.
 struct PointToPlaneParams
 {
@@ -37,15 +49,24 @@ struct PointToPlaneParams
   double source_voxel_size_m = 0.5;
   /// Target scan keeps one point per voxel of this size before normals (metres); 0: none.
   double target_voxel_size_m = 0.3;
-  /// Nearest target points fitted by each target point's plane (>= 3).
+  /// Each plane is fitted to the raw points of the 3x3x3 voxel block around its voxel;
+  /// fewer raw points than this (>= 3): no plane there.
   int normal_neighbours = 10;
   /// A target point is unused when its neighbourhood's surface variation
   /// lambda_min / (lambda_0 + lambda_1 + lambda_2) exceeds this (not a plane), [0, 1/3].
   double max_surface_variation = 0.1;
   /// Source points farther than this from their nearest target point are unpaired (metres).
   double max_correspondence_distance_m = 1.0;
-  /// Robust kernel on point-to-plane residuals.
-  RobustKernel kernel = RobustKernel::kGemanMcClure;
+  /// Cost (see RefinementCost); plane-to-plane is the measured best (doc/registration.md).
+  RefinementCost cost = RefinementCost::kPlaneToPlane;
+  /// Plane-to-plane: covariance along the normal relative to the in-plane one, (0, 1].
+  double plane_covariance_epsilon = 1e-3;
+  /// At most this many source points are used, taken evenly spread from the voxelized
+  /// source (scan order); 0: all. prepareSource() fits planes on ~2x as many voxels only.
+  int max_source_points = 1500;
+  /// Robust kernel on point-to-plane residuals. Huber: the most stable result on the real
+  /// pairs (Geman-McClure flips between two minima 0.35 deg apart, doc/registration.md).
+  RobustKernel kernel = RobustKernel::kHuber;
   /// Kernel scale (metres); 0: adaptive, at iteration k the larger of 1.4826 * median |r|
   /// (a robust sigma of the current residuals) and (max_correspondence_distance_m / 3)
   /// / 2^k (graduated: wide first), clamped to [min_kernel_scale_m,
@@ -106,8 +127,9 @@ voxelDownsample(const PointVector& points, double voxel_size_m);
 PointVector
 toPointVector(const pcl::PointCloud<pcl::PointXYZI>& cloud);
 
-/// \brief A registration target prepared once (voxelized points, normals, kd-tree) and
-/// reused for many sources, e.g. a key-frame scan or a local map.
+/// \brief A registration target prepared once (voxelized points, normals, voxel hash map)
+/// and reused for many sources, e.g. a key-frame scan or a local map. A source scan can be
+/// prepared the same way (with source_voxel_size_m) for the plane-to-plane cost.
 class PointToPlaneTarget
 {
 public:
@@ -120,8 +142,9 @@ public:
   PointToPlaneTarget&
   operator=(PointToPlaneTarget&&) noexcept;
 
-  /// \brief Prepare from a raw scan: voxelize (target_voxel_size_m), fit normals
-  /// (normal_neighbours, max_surface_variation), index the planar points.
+  /// \brief Prepare from a raw scan: voxelize (target_voxel_size_m; one point per voxel,
+  /// the mean of its raw points), fit a plane per voxel to the raw points of its 3x3x3
+  /// voxel block (normal_neighbours, max_surface_variation), index the planar points.
   /// \throws std::invalid_argument on invalid params or fewer than normal_neighbours points
   void
   build(const PointVector& points, const PointToPlaneParams& params = PointToPlaneParams());
@@ -135,7 +158,9 @@ public:
   void
   build(const pcl::PointCloud<pcl::PointNormal>& cloud_with_normals);
 
-  /// \brief Nearest planar target point within max_distance_m of query.
+  /// \brief Nearest planar target point within max_distance_m of query, searched in the
+  /// 27 hash-map cells around it (cells of max(voxel size, max_distance_m / 2) for a
+  /// prepared scan): exact within one cell size, approximate beyond, as in KISS-ICP.
   /// \return false when there is none
   bool
   nearest(const Eigen::Vector3d& query,
@@ -166,8 +191,13 @@ public:
   }
 
 private:
+  friend PointToPlaneTarget
+  prepareSource(const pcl::PointCloud<pcl::PointXYZI>& cloud, const PointToPlaneParams& params);
+  /// build() fitting planes on about 2 * max_planes evenly spread voxels only (0: all).
   void
-  buildIndex();
+  build(const PointVector& points, const PointToPlaneParams& params, std::size_t max_planes);
+  void
+  buildIndex(double cell_size_m);
 
   PointVector points_;
   PointVector normals_;
@@ -188,7 +218,24 @@ refinePointToPlane(const PointVector& source,
                    const Eigen::Isometry3d& T_target_source_guess,
                    const PointToPlaneParams& params = PointToPlaneParams());
 
-/// \brief Voxelize a source scan (source_voxel_size_m), then refinePointToPlane().
+/// \brief Refine with a prepared source (PointToPlaneTarget::build() with the source voxel
+/// size, see prepareSource()): its points and normals, so the plane-to-plane cost
+/// applies. Same parameters and result as the overload on points.
+PointToPlaneResult
+refinePointToPlane(const PointToPlaneTarget& source,
+                   const PointToPlaneTarget& target,
+                   const Eigen::Isometry3d& T_target_source_guess,
+                   const PointToPlaneParams& params = PointToPlaneParams());
+
+/// \brief Prepare a source scan: PointToPlaneTarget::build() with target_voxel_size_m
+/// replaced by source_voxel_size_m.
+/// \throws std::invalid_argument on invalid params or too few points
+PointToPlaneTarget
+prepareSource(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+              const PointToPlaneParams& params = PointToPlaneParams());
+
+/// \brief Prepare the source scan (prepareSource()), then refine with both normals; when
+/// the source has no planar points, refine its voxelized points instead.
 PointToPlaneResult
 refinePointToPlane(const pcl::PointCloud<pcl::PointXYZI>& source,
                    const PointToPlaneTarget& target,
