@@ -1,0 +1,214 @@
+/// \file bench_front_end.cpp
+/// \brief The odometry front end per stage on the real HDL-64 scans of
+/// ../shared/data/kitti-raw-22 (single thread): ground removal, rasterization, ORB
+/// extraction, matching + RANSAC + pose, and the whole Odometry::processFrame with the
+/// median of every stage (refinement included) reported as counters.
+///
+///   build/benchmarks/bench_front_end --benchmark_repetitions=3
+///
+/// Read the CPU column on a shared machine: wall time includes waiting for the core.
+
+#include <pcl/features/orb_raster_features.h>
+#include <pcl/features/range_raster_image.h>
+#include <pcl/registration/hamming_correspondence_estimation.h>
+#include <pcl/registration/rigid_ransac.h>
+#include <pcl/segmentation/sac_ground_removal.h>
+#include <pcl/slam/odometry.h>
+#include <pcl/slam/sequence_reader.h>
+
+#include <benchmark/benchmark.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <vector>
+
+namespace {
+
+namespace rast = pcl::rast;
+using Cloud = pcl::PointCloud<pcl::PointXYZI>;
+
+/// The scans, their non-ground clouds, rasters and features, computed once.
+struct Data
+{
+  std::vector<Cloud::ConstPtr> scans;
+  std::vector<Cloud::ConstPtr> non_ground;
+  std::vector<rast::RangeRasterImage> rasters;
+  std::vector<rast::RasterFeatureSet> features;
+  bool ok = false;
+};
+
+const Data&
+data()
+{
+  static Data d = [] {
+    Data out;
+    const std::string folder = std::string(PCL_RAST_SHARED_DATA_DIR) + "/kitti-raw-22";
+    if (!std::filesystem::exists(folder))
+      return out;
+    const rast::OdometryParams params;
+    rast::SequenceReader reader(folder);
+    for (std::size_t i = 0; i < reader.size(); ++i) {
+      const rast::ScanFrame frame = reader.read(i);
+      out.scans.push_back(frame.cloud);
+      rast::SACGroundRemoval ground(params.ground);
+      ground.setInputCloud(frame.cloud);
+      rast::GroundRemovalResult g;
+      ground.segment(g);
+      out.non_ground.push_back(g.non_ground);
+      rast::RangeRasterImage raster(params.raster);
+      raster.setInputCloud(g.non_ground);
+      raster.compute();
+      out.rasters.push_back(raster);
+      rast::OrbRasterFeatureEstimator orb;
+      orb.setParams(params.orb);
+      orb.setInputRaster(raster);
+      rast::RasterFeatureSet f;
+      orb.compute(f);
+      out.features.push_back(std::move(f));
+    }
+    out.ok = !out.scans.empty();
+    return out;
+  }();
+  return d;
+}
+
+bool
+skipWithoutData(benchmark::State& state)
+{
+  if (data().ok)
+    return false;
+  state.SkipWithError("../shared/data/kitti-raw-22 not found");
+  return true;
+}
+
+void
+BM_GroundRemoval(benchmark::State& state)
+{
+  if (skipWithoutData(state))
+    return;
+  const rast::OdometryParams params;
+  rast::SACGroundRemoval ground(params.ground);
+  std::size_t i = 0;
+  for (auto _ : state) {
+    ground.setInputCloud(data().scans[i++ % data().scans.size()]);
+    rast::GroundRemovalResult g;
+    ground.segment(g);
+    benchmark::DoNotOptimize(g.ground_found);
+  }
+}
+BENCHMARK(BM_GroundRemoval)->Unit(benchmark::kMillisecond);
+
+void
+BM_Rasterization(benchmark::State& state)
+{
+  if (skipWithoutData(state))
+    return;
+  const rast::OdometryParams params;
+  rast::RangeRasterImage raster(params.raster);
+  std::size_t i = 0;
+  for (auto _ : state) {
+    raster.setInputCloud(data().non_ground[i++ % data().non_ground.size()]);
+    raster.compute();
+    benchmark::DoNotOptimize(raster.numOccupiedPixels());
+  }
+}
+BENCHMARK(BM_Rasterization)->Unit(benchmark::kMillisecond);
+
+void
+BM_OrbExtraction(benchmark::State& state)
+{
+  if (skipWithoutData(state))
+    return;
+  const rast::OdometryParams params;
+  rast::OrbRasterFeatureEstimator orb;
+  orb.setParams(params.orb);
+  std::size_t i = 0;
+  for (auto _ : state) {
+    orb.setInputRaster(data().rasters[i++ % data().rasters.size()]);
+    rast::RasterFeatureSet f;
+    benchmark::DoNotOptimize(orb.compute(f).num_features);
+  }
+}
+BENCHMARK(BM_OrbExtraction)->Unit(benchmark::kMillisecond);
+
+void
+BM_MatchRansacPose(benchmark::State& state)
+{
+  if (skipWithoutData(state))
+    return;
+  const rast::OdometryParams params;
+  const auto& f = data().features;
+  std::size_t i = 0;
+  for (auto _ : state) {
+    const std::size_t k = i++ % (f.size() - 1);
+    const pcl::Correspondences matches =
+        rast::matchHamming(f[k + 1], f[k], params.registration.matching);
+    const rast::RigidRansacResult r =
+        rast::estimateRigidRansac(f[k + 1].points, f[k].points, matches,
+                                  params.registration.ransac);
+    benchmark::DoNotOptimize(r.success);
+  }
+}
+BENCHMARK(BM_MatchRansacPose)->Unit(benchmark::kMillisecond);
+
+/// The whole front end frame by frame over the sequence (restarted at its end);
+/// counters give the median of every stage as the odometry measured it.
+void
+processFrames(benchmark::State& state, bool refine)
+{
+  if (skipWithoutData(state))
+    return;
+  rast::OdometryParams params;
+  params.registration.refine = refine;
+  auto odometry = std::make_unique<rast::Odometry>(params);
+  std::vector<rast::OdometryTimings> timings;
+  std::size_t i = 0, index = 0;
+  for (auto _ : state) {
+    if (i == data().scans.size()) {
+      state.PauseTiming();
+      odometry = std::make_unique<rast::Odometry>(params);
+      i = 0;
+      state.ResumeTiming();
+    }
+    const auto r = odometry->processFrame(data().scans[i], 0.1 * index, index);
+    ++i;
+    ++index;
+    if (i > 1) // the first frame of a run only builds the map
+      timings.push_back(r.timings);
+  }
+  auto median = [&timings](double rast::OdometryTimings::*member) {
+    std::vector<double> v;
+    for (const auto& t : timings)
+      v.push_back(t.*member);
+    if (v.empty())
+      return 0.0;
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+  };
+  state.counters["ground_ms"] = median(&rast::OdometryTimings::ground_ms);
+  state.counters["raster_ms"] = median(&rast::OdometryTimings::raster_ms);
+  state.counters["orb_ms"] = median(&rast::OdometryTimings::orb_ms);
+  state.counters["match_ms"] = median(&rast::OdometryTimings::match_ms);
+  state.counters["refine_ms"] = median(&rast::OdometryTimings::refine_ms);
+  state.counters["keyframe_ms"] = median(&rast::OdometryTimings::keyframe_ms);
+  state.counters["total_ms"] = median(&rast::OdometryTimings::total_ms);
+}
+
+void
+BM_ProcessFrame(benchmark::State& state)
+{
+  processFrames(state, true);
+}
+BENCHMARK(BM_ProcessFrame)->Unit(benchmark::kMillisecond)->Iterations(210);
+
+void
+BM_ProcessFrameNoRefinement(benchmark::State& state)
+{
+  processFrames(state, false);
+}
+BENCHMARK(BM_ProcessFrameNoRefinement)->Unit(benchmark::kMillisecond)->Iterations(210);
+
+} // namespace
+
+BENCHMARK_MAIN();

@@ -1,0 +1,225 @@
+#pragma once
+/// \file odometry.h
+/// \brief The tracking stage (the paper's sections 4-7): ground removal, raster, ORB,
+/// feature registration against the last key-frame with a constant-velocity prior,
+/// dense point-to-plane refinement, the feature-consistency check with fallbacks, and
+/// the key-frame decision.
+/// \ingroup slam
+///
+/// Poses are in the odometry world frame (the first scan's LiDAR frame). The back end
+/// (local BA, loop closure) never moves this frame: it corrects key-frame poses, and a
+/// frame's corrected pose is T_world_keyframe(corrected) * T_keyframe_lidar.
+
+#include <pcl/features/orb_raster_features.h>
+#include <pcl/features/range_raster_image.h>
+#include <pcl/registration/correspondence_rigid_registration.h>
+#include <pcl/segmentation/sac_ground_removal.h>
+#include <pcl/slam/keyframe.h>
+#include <pcl/slam/pose_io.h>
+
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+
+#include <cstddef>
+#include <memory>
+#include <string>
+
+namespace pcl {
+namespace rast {
+
+/// \brief How a frame's pose was obtained.
+enum class TrackingStatus
+{
+  kFirstFrame,       ///< the first frame: identity, becomes key-frame 0
+  kFeatures,         ///< ORB feature registration (+ dense refinement) succeeded
+  kDenseFallback,    ///< too few consistent features: dense ICP from the motion prior
+  kConstantVelocity, ///< features and dense ICP failed: constant-velocity prediction
+  kSkipped           ///< no usable scan (unreadable, empty): constant-velocity prediction
+};
+
+/// \brief Short name of a status ("features", "dense_fallback", ...).
+const char*
+toString(TrackingStatus status);
+
+/// \brief Wall time of each stage of one frame, milliseconds.
+struct OdometryTimings
+{
+  double ground_ms = 0.0;   ///< SAC ground removal (and levelling)
+  double raster_ms = 0.0;   ///< rasterization
+  double orb_ms = 0.0;      ///< ORB extraction
+  double match_ms = 0.0;    ///< matching + RANSAC + pose from correspondences
+  double refine_ms = 0.0;   ///< dense point-to-plane refinement
+  double keyframe_ms = 0.0; ///< key-frame decision and local-map update
+  double total_ms = 0.0;    ///< the whole frame
+};
+
+/// \brief The outcome of tracking one frame.
+struct OdometryFrameResult
+{
+  std::size_t frame_index = 0;
+  double timestamp_s = 0.0;
+  TrackingStatus status = TrackingStatus::kSkipped;
+  /// True when the pose is less trustworthy than usual (any fallback or skip).
+  bool degraded = false;
+  std::string message;
+
+  /// Pose of the scan in the odometry world frame.
+  Pose3d T_world_lidar = Pose3d::Identity();
+  /// The key-frame this frame was tracked against and the pose relative to it, so
+  /// that the back end's corrections carry over: T_world_lidar = T_world_kf * T_kf_lidar.
+  KeyFrameId reference_keyframe = 0;
+  Pose3d T_keyframe_lidar = Pose3d::Identity();
+
+  /// Non-null when this frame became a key-frame (then reference_keyframe is its id).
+  KeyFrame::Ptr keyframe;
+
+  bool ground_found = false;
+  int num_features = 0;   ///< ORB features of this frame
+  int num_matches = 0;    ///< descriptor matches with the reference key-frame
+  int num_inliers = 0;    ///< RANSAC inliers: "points in common" with the key-frame
+  bool refined = false;   ///< the dense refinement ran and was used
+  int dense_correspondences = 0; ///< source points paired with map planes (last run)
+  int dense_degenerate_directions = 0; ///< unconstrained directions of the dense step
+  double dense_rmse_m = 0.0;     ///< RMS point-to-plane residual of the dense step
+  OdometryTimings timings;
+};
+
+/// \brief Dense point-to-plane tracking of a scan against the local map: a KISS-ICP-like
+/// voxel hash map of the key-frames' points in the world frame, one plane per voxel,
+/// robust Gauss-Newton with degeneracy-aware updates (doc/odometry.md).
+struct DenseTrackingParams
+{
+  /// The scan is voxelized with this leaf before refinement [m] ...
+  double source_voxel_size_m = 1.0;
+  /// ... and then subsampled (deterministic stride) to at most this many points.
+  int max_source_points = 1000;
+  /// Leaf of the local map: one plane is fitted per voxel [m].
+  double map_voxel_size_m = 1.0;
+  /// Points kept per map voxel (the first ones inserted, as in KISS-ICP).
+  int map_max_points_per_voxel = 20;
+  /// Map voxels farther than this from the newest key-frame are dropped [m].
+  double map_radius_m = 100.0;
+  /// A voxel is a plane when lambda_min / (lambda_0 + lambda_1 + lambda_2) <= this.
+  double max_surface_variation = 0.04;
+  /// Residuals larger than this are not paired [m].
+  double max_correspondence_distance_m = 1.0;
+  /// Gauss-Newton iterations at most.
+  int max_iterations = 6;
+  /// The Geman-McClure scale anneals from max_correspondence_distance_m / 3, halving
+  /// per iteration, down to this [m] (about the sensor noise).
+  double min_kernel_scale_m = 0.05;
+  /// Converged when an update moves less than this [m] ...
+  double convergence_translation_m = 1e-3;
+  /// ... and rotates less than this [rad].
+  double convergence_rotation_rad = 1e-4;
+  /// A direction of the 6x6 normal equations (rotations scaled by 10 m) is degenerate
+  /// when its eigenvalue is below this fraction of the total weight; the update is
+  /// not applied along it (the initial guess is kept there, e.g. x/y/yaw on an open field).
+  double degeneracy_min_ratio = 0.003;
+  /// Fewer paired source points than this: failure.
+  int min_correspondences = 100;
+  /// Failure when the result moved farther than this from its initial guess [m] ...
+  double max_correction_m = 1.5;
+  /// ... or rotated more than this [deg].
+  double max_correction_deg = 5.0;
+
+  /// \brief True when every member is valid; otherwise says why in *why.
+  bool
+  isValid(std::string* why = nullptr) const;
+};
+
+/// \brief Everything tracking can be tuned with; defaults suit a car-mounted
+/// HDL-64/VLP-16/Ouster at 10 Hz.
+///
+/// Which members are used: ground, raster, orb as named; registration.matching and
+/// registration.ransac for the feature estimate against the last key-frame;
+/// registration.refine switches the dense refinement, whose parameters are \a dense
+/// (registration.refinement and registration.min_correspondences are not used here).
+struct OdometryParams
+{
+  SACGroundRemovalParams ground;
+  RangeRasterParams raster;
+  OrbRasterFeatureParams orb;
+  RegistrationParams registration;
+  /// Paper, sec. 7.3 A: at least this many frames since the last key-frame.
+  int keyframe_min_frames = 5;
+  /// Paper, sec. 7.3 B: at most this many points in common (RANSAC inliers) with it.
+  int keyframe_max_common_points = 100;
+
+  // ---- input ----
+  /// Points closer to the sensor than this are dropped (vehicle body, operator) [m].
+  double min_range_m = 0.5;
+  /// Points farther than this are dropped (far outliers) [m].
+  double max_range_m = 200.0;
+
+  // ---- feature tracking ----
+  /// Feature-consistency check: fewer RANSAC inliers than this and the feature estimate
+  /// is not used (dense ICP from the prior instead, flagged degraded).
+  int min_feature_inliers = 15;
+  /// A feature estimate with at least this many inliers is trusted even when it is far
+  /// from the constant-velocity prior (large motion); below it, and far from the
+  /// prior, both starts are refined and the better fit wins.
+  int strong_feature_inliers = 40;
+  /// "Far from the prior": translation [m] ...
+  double prior_gate_m = 1.0;
+  /// ... or rotation [deg].
+  double prior_gate_deg = 5.0;
+
+  // ---- dense refinement ----
+  DenseTrackingParams dense;
+
+  // ---- key-frames (safety rules besides the paper's two) ----
+  /// Leaf of the voxelized scan a key-frame keeps (and adds to the local map) [m].
+  double keyframe_voxel_size_m = 0.5;
+  /// Force a key-frame when tracking against the current one degrades: fewer
+  /// inliers than this (and the frame has at least min_feature_inliers features).
+  int keyframe_min_inliers = 30;
+  /// Force a key-frame beyond this distance from the current one [m] ...
+  double keyframe_max_distance_m = 10.0;
+  /// ... or this rotation [deg].
+  double keyframe_max_rotation_deg = 20.0;
+
+  /// \brief True when every member is valid; otherwise says why in *why.
+  bool
+  isValid(std::string* why = nullptr) const;
+};
+
+/// \brief Frame-to-key-frame LiDAR odometry on rasterized ORB features.
+class Odometry
+{
+public:
+  using Ptr = std::shared_ptr<Odometry>;
+
+  /// \throws std::invalid_argument when \a params are invalid (message says why)
+  explicit Odometry(const OdometryParams& params = OdometryParams());
+  ~Odometry();
+
+  /// \brief Track one scan (LiDAR frame). Never throws on bad data: an empty or
+  /// featureless cloud gives a degraded result. Frame indices must increase.
+  OdometryFrameResult
+  processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+               double timestamp_s,
+               std::size_t frame_index);
+
+  /// \brief Account for a frame without a usable scan: constant-velocity
+  /// prediction, status kSkipped, never a key-frame.
+  OdometryFrameResult
+  skipFrame(double timestamp_s, std::size_t frame_index, const std::string& reason);
+
+  const OdometryParams&
+  params() const;
+
+  /// \brief Number of key-frames created so far.
+  std::size_t
+  numKeyFrames() const;
+  /// \brief Number of voxels of the local map (memory diagnostics).
+  std::size_t
+  localMapSize() const;
+
+private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+} // namespace rast
+} // namespace pcl

@@ -1,0 +1,593 @@
+/// \file odometry.cpp
+/// \brief Odometry::processFrame, step by step as in the paper's tracking figure:
+/// ground removal -> raster -> ORB -> match the last key-frame -> RANSAC -> dense
+/// refinement against the local map -> feature-consistency fallbacks -> key-frame.
+
+#include <pcl/slam/odometry.h>
+
+#include <pcl/registration/hamming_correspondence_estimation.h>
+#include <pcl/registration/rigid_ransac.h>
+
+#include "odometry_local_map.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+
+namespace pcl {
+namespace rast {
+
+using odometry_detail::DenseResult;
+using odometry_detail::Points3f;
+using odometry_detail::VoxelPlaneMap;
+
+const char*
+toString(TrackingStatus status)
+{
+  switch (status) {
+  case TrackingStatus::kFirstFrame:
+    return "first_frame";
+  case TrackingStatus::kFeatures:
+    return "features";
+  case TrackingStatus::kDenseFallback:
+    return "dense_fallback";
+  case TrackingStatus::kConstantVelocity:
+    return "constant_velocity";
+  case TrackingStatus::kSkipped:
+    return "skipped";
+  }
+  return "unknown";
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double
+msSince(Clock::time_point start)
+{
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+bool
+finitePositive(double v)
+{
+  return std::isfinite(v) && v > 0.0;
+}
+
+double
+angleDeg(const Pose3d& T)
+{
+  return Eigen::AngleAxisd(T.rotation()).angle() * 180.0 / M_PI;
+}
+
+/// The motion \a delta scaled by \a ratio (rotation angle and translation), for a
+/// constant-velocity prediction over a different time step.
+Pose3d
+scaleMotion(const Pose3d& delta, double ratio)
+{
+  const Eigen::AngleAxisd aa(delta.rotation());
+  Pose3d out = Pose3d::Identity();
+  out.linear() = Eigen::AngleAxisd(aa.angle() * ratio, aa.axis()).toRotationMatrix();
+  out.translation() = delta.translation() * ratio;
+  return out;
+}
+
+/// After this many frames without feature or dense tracking, a frame with features
+/// becomes a key-frame anyway (re-anchoring, flagged), so that tracking recovers after
+/// a featureless stretch instead of comparing forever against a stale key-frame.
+constexpr int kReanchorAfterFrames = 3;
+
+/// Dense ICP from the prior (no feature support) is accepted only when at least this
+/// fraction of the source points pairs with map planes (well-tracked frames: 0.8-0.95).
+constexpr double kMinFallbackPairedRatio = 0.6;
+
+} // namespace
+
+bool
+DenseTrackingParams::isValid(std::string* why) const
+{
+  std::string reason;
+  if (!finitePositive(source_voxel_size_m))
+    reason = "source_voxel_size_m must be > 0";
+  else if (max_source_points < 10)
+    reason = "max_source_points must be >= 10";
+  else if (!finitePositive(map_voxel_size_m))
+    reason = "map_voxel_size_m must be > 0";
+  else if (map_max_points_per_voxel < 5)
+    reason = "map_max_points_per_voxel must be >= 5 (a plane needs 5 points)";
+  else if (!finitePositive(map_radius_m))
+    reason = "map_radius_m must be > 0";
+  else if (!(max_surface_variation > 0.0 && max_surface_variation <= 1.0 / 3.0))
+    reason = "max_surface_variation must be in (0, 1/3]";
+  else if (!finitePositive(max_correspondence_distance_m))
+    reason = "max_correspondence_distance_m must be > 0";
+  else if (max_iterations < 1)
+    reason = "max_iterations must be >= 1";
+  else if (!finitePositive(min_kernel_scale_m))
+    reason = "min_kernel_scale_m must be > 0";
+  else if (!(convergence_translation_m >= 0.0) || !(convergence_rotation_rad >= 0.0))
+    reason = "convergence thresholds must be >= 0";
+  else if (!(degeneracy_min_ratio >= 0.0 && degeneracy_min_ratio < 1.0))
+    reason = "degeneracy_min_ratio must be in [0, 1)";
+  else if (min_correspondences < 6)
+    reason = "min_correspondences must be >= 6";
+  else if (!finitePositive(max_correction_m) || !finitePositive(max_correction_deg))
+    reason = "max_correction_m and max_correction_deg must be > 0";
+  if (why)
+    *why = reason;
+  return reason.empty();
+}
+
+bool
+OdometryParams::isValid(std::string* why) const
+{
+  std::string reason, sub;
+  if (!ground.isValid(&sub))
+    reason = "ground." + sub;
+  else if (!raster.isValid(&sub))
+    reason = "raster." + sub;
+  else if (!orb.isValid(&sub))
+    reason = "orb." + sub;
+  else if (!registration.isValid(&sub))
+    reason = "registration." + sub;
+  else if (!dense.isValid(&sub))
+    reason = "dense." + sub;
+  else if (keyframe_min_frames < 1)
+    reason = "keyframe_min_frames must be >= 1, got " + std::to_string(keyframe_min_frames);
+  else if (keyframe_max_common_points < 0)
+    reason = "keyframe_max_common_points must be >= 0, got " +
+             std::to_string(keyframe_max_common_points);
+  else if (!(min_range_m >= 0.0) || !(max_range_m > min_range_m) || !std::isfinite(max_range_m))
+    reason = "need 0 <= min_range_m < max_range_m (finite), got " + std::to_string(min_range_m) +
+             ", " + std::to_string(max_range_m);
+  else if (min_feature_inliers < 3)
+    reason = "min_feature_inliers must be >= 3, got " + std::to_string(min_feature_inliers);
+  else if (strong_feature_inliers < min_feature_inliers)
+    reason = "strong_feature_inliers must be >= min_feature_inliers";
+  else if (!finitePositive(prior_gate_m) || !finitePositive(prior_gate_deg))
+    reason = "prior_gate_m and prior_gate_deg must be > 0";
+  else if (!finitePositive(keyframe_voxel_size_m))
+    reason = "keyframe_voxel_size_m must be > 0";
+  else if (keyframe_min_inliers < 0)
+    reason = "keyframe_min_inliers must be >= 0";
+  else if (!finitePositive(keyframe_max_distance_m) || !finitePositive(keyframe_max_rotation_deg))
+    reason = "keyframe_max_distance_m and keyframe_max_rotation_deg must be > 0";
+  if (why)
+    *why = reason;
+  return reason.empty();
+}
+
+// ---------------------------------------------------------------------------
+
+struct Odometry::Impl
+{
+  explicit Impl(const OdometryParams& p) : params(p), ground(p.ground), map(p.dense)
+  {
+    orb.setParams(p.orb);
+    orb.setRasterParams(p.raster);
+  }
+
+  OdometryParams params;
+  SACGroundRemoval ground;
+  OrbRasterFeatureEstimator orb;
+  VoxelPlaneMap map;
+
+  // The key-frame tracked against. Only its immutable parts (features) are read:
+  // its pose may be corrected by the back end, tracking keeps its own copy.
+  KeyFrame::ConstPtr keyframe;
+  Pose3d T_world_keyframe = Pose3d::Identity();
+  KeyFrameId next_keyframe_id = 0;
+  int frames_since_keyframe = 0;
+  int frames_without_tracking = 0;
+  // The previous frame's features and pose (when it was tracked): the second reference
+  // when the key-frame is too far (large motion at a low frame rate).
+  std::shared_ptr<const RasterFeatureSet> last_features;
+  Pose3d T_world_last_features = Pose3d::Identity();
+
+  // Motion state for the constant-velocity prior.
+  int num_poses = 0;
+  Pose3d T_world_last = Pose3d::Identity(), T_world_before = Pose3d::Identity();
+  double t_last = 0.0, t_before = 0.0;
+  bool have_index = false;
+  std::size_t last_index = 0;
+
+  Pose3d
+  predict(double timestamp_s) const;
+  void
+  checkIndex(std::size_t frame_index);
+  void
+  commitPose(const OdometryFrameResult& result);
+  OdometryFrameResult
+  skip(double timestamp_s, std::size_t frame_index, const std::string& reason);
+  OdometryFrameResult
+  track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input, OdometryFrameResult result);
+  KeyFrame::Ptr
+  makeKeyFrame(const OdometryFrameResult& result,
+               RasterFeatureSet&& features,
+               const pcl::PointCloud<pcl::PointXYZI>& cloud);
+};
+
+Pose3d
+Odometry::Impl::predict(double timestamp_s) const
+{
+  if (num_poses == 0)
+    return Pose3d::Identity();
+  if (num_poses == 1)
+    return T_world_last;
+  // Constant velocity: repeat the last motion, scaled to this frame's time step.
+  const double dt_prev = t_last - t_before, dt = timestamp_s - t_last;
+  double ratio = 1.0;
+  if (std::isfinite(dt_prev) && std::isfinite(dt) && dt_prev > 1e-6 && dt > 0.0)
+    ratio = std::min(dt / dt_prev, 5.0);
+  return T_world_last * scaleMotion(T_world_before.inverse() * T_world_last, ratio);
+}
+
+void
+Odometry::Impl::checkIndex(std::size_t frame_index)
+{
+  if (have_index && frame_index <= last_index)
+    throw std::invalid_argument("Odometry: frame indices must increase, got " +
+                                std::to_string(frame_index) + " after " +
+                                std::to_string(last_index));
+  have_index = true;
+  last_index = frame_index;
+}
+
+void
+Odometry::Impl::commitPose(const OdometryFrameResult& result)
+{
+  T_world_before = T_world_last;
+  t_before = t_last;
+  T_world_last = result.T_world_lidar;
+  t_last = result.timestamp_s;
+  ++num_poses;
+  ++frames_since_keyframe;
+  const bool tracked = result.status == TrackingStatus::kFeatures ||
+                       result.status == TrackingStatus::kDenseFallback ||
+                       result.status == TrackingStatus::kFirstFrame;
+  frames_without_tracking = tracked ? 0 : frames_without_tracking + 1;
+  if (result.keyframe) {
+    frames_since_keyframe = 0;
+    frames_without_tracking = 0;
+  }
+}
+
+KeyFrame::Ptr
+Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
+                             RasterFeatureSet&& features,
+                             const pcl::PointCloud<pcl::PointXYZI>& cloud)
+{
+  auto kf = std::make_shared<KeyFrame>();
+  kf->id = next_keyframe_id++;
+  kf->frame_index = result.frame_index;
+  kf->timestamp_s = result.timestamp_s;
+  kf->T_world_keyframe = result.T_world_lidar;
+  kf->T_previous_keyframe =
+      keyframe ? Pose3d(T_world_keyframe.inverse() * result.T_world_lidar) : Pose3d::Identity();
+  kf->features = std::move(features);
+  kf->map_point_ids.assign(kf->features.size(), kNoMapPoint);
+
+  // The voxelized scan the key-frame keeps (memory: keyframe_voxel_size_m) ...
+  const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
+  const std::vector<int> kept =
+      odometry_detail::voxelDownsampleIndices(cloud, params.keyframe_voxel_size_m, in_range);
+  auto voxels = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+  voxels->header = cloud.header;
+  voxels->points.reserve(kept.size());
+  for (const int i : kept)
+    voxels->points.push_back(cloud.points[i]);
+  voxels->width = static_cast<std::uint32_t>(voxels->points.size());
+  voxels->height = 1;
+  voxels->is_dense = true;
+  kf->cloud = voxels;
+
+  // ... and a denser one for the local map, so that a single key-frame already gives
+  // every map voxel on a surface enough points for a plane (4 x 4 per voxel face).
+  const Eigen::Isometry3f T = result.T_world_lidar.cast<float>();
+  Points3f points_world;
+  for (const int i : odometry_detail::voxelDownsampleIndices(
+           cloud, params.dense.map_voxel_size_m / 4.0, in_range))
+    points_world.push_back(T * cloud.points[i].getVector3fMap());
+  map.insert(points_world, T.translation());
+
+  keyframe = kf;
+  T_world_keyframe = result.T_world_lidar;
+  return kf;
+}
+
+OdometryFrameResult
+Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr,
+                      OdometryFrameResult result)
+{
+  const auto& input = *input_ptr;
+  const auto frame_start = Clock::now();
+  const Pose3d T_world_prior = predict(result.timestamp_s);
+  result.T_world_lidar = T_world_prior;
+  result.reference_keyframe = keyframe ? keyframe->id : 0;
+
+  // 0. Enough finite points within the range limits? (Ground removal and raster skip
+  //    non-finite points themselves; the range limits apply to the dense steps.)
+  const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
+  const std::size_t num_usable = odometry_detail::countInRange(input, in_range);
+  if (num_usable < 10) {
+    result.status = TrackingStatus::kSkipped;
+    result.degraded = true;
+    result.message = "no usable points (" + std::to_string(num_usable) + " of " +
+                     std::to_string(input.size()) +
+                     " finite and in range): constant-velocity prediction";
+    return result;
+  }
+  const auto& cloud = input_ptr;
+
+  // 1. Ground removal (paper sec. 4), optionally levelling the non-ground cloud.
+  auto start = Clock::now();
+  ground.setInputCloud(cloud);
+  GroundRemovalResult ground_result;
+  ground.segment(ground_result);
+  result.ground_found = ground_result.ground_found;
+  result.timings.ground_ms = msSince(start);
+
+  // 2-3. Raster of the non-ground points and ORB features (sec. 5-6).
+  auto features = std::make_shared<RasterFeatureSet>();
+  if (ground_result.non_ground && !ground_result.non_ground->empty()) {
+    orb.setInputCloud(ground_result.non_ground);
+    const OrbRasterFeatureResult orb_result = orb.compute(*features);
+    result.timings.raster_ms = orb_result.raster_ms;
+    result.timings.orb_ms = orb_result.detect_ms + orb_result.describe_ms;
+    // Features of a levelled raster go back to the LiDAR frame.
+    if (ground_result.ground_found && !ground_result.T_level_lidar.isApprox(
+                                          Eigen::Isometry3f::Identity())) {
+      const Eigen::Isometry3f T_lidar_level = ground_result.T_level_lidar.inverse();
+      for (auto& p : features->points)
+        p.getVector3fMap() = T_lidar_level * p.getVector3fMap();
+    }
+  }
+  result.num_features = static_cast<int>(features->size());
+
+  // The first usable frame starts the map.
+  if (!keyframe) {
+    result.status = TrackingStatus::kFirstFrame;
+    result.message = "first frame: key-frame 0";
+    start = Clock::now();
+    result.keyframe = makeKeyFrame(result, std::move(*features), *cloud);
+    result.reference_keyframe = result.keyframe->id;
+    result.timings.keyframe_ms = msSince(start);
+    result.timings.total_ms = msSince(frame_start);
+    return result;
+  }
+  const Pose3d T_keyframe_prior = T_world_keyframe.inverse() * T_world_prior;
+
+  // 4. Match the last key-frame's features (no spatial gate by default: large motion
+  //    must track), rigid RANSAC, eq. 4 on the inliers (sec. 7.1-7.2).
+  start = Clock::now();
+  RigidRansacResult ransac;
+  const RasterFeatureSet& kf_features = keyframe->features;
+  if (features->size() >= 3 && kf_features.size() >= 3) {
+    const pcl::Correspondences matches =
+        matchHamming(*features, kf_features, params.registration.matching, T_keyframe_prior);
+    result.num_matches = static_cast<int>(matches.size());
+    if (matches.size() >= 3)
+      ransac = estimateRigidRansac(features->points, kf_features.points, matches,
+                                   params.registration.ransac);
+  }
+  result.num_inliers = ransac.success ? static_cast<int>(ransac.inlier_indices.size()) : 0;
+  bool features_ok = ransac.success && result.num_inliers >= params.min_feature_inliers;
+  Pose3d T_world_features = T_world_keyframe * ransac.T_target_source;
+  std::string reference = "the key-frame";
+  if (!features_ok && last_features && last_features->size() >= 3 && features->size() >= 3) {
+    // Too far from the key-frame: the previous frame is closer.
+    const Pose3d T_last_prior = T_world_last_features.inverse() * T_world_prior;
+    const pcl::Correspondences matches =
+        matchHamming(*features, *last_features, params.registration.matching, T_last_prior);
+    if (matches.size() >= 3) {
+      const RigidRansacResult last = estimateRigidRansac(
+          features->points, last_features->points, matches, params.registration.ransac);
+      if (last.success && static_cast<int>(last.inlier_indices.size()) >= params.min_feature_inliers) {
+        features_ok = true;
+        T_world_features = T_world_last_features * last.T_target_source;
+        result.num_matches = static_cast<int>(matches.size());
+        ransac = last;
+        reference = "the previous frame";
+        // num_inliers stays the count with the key-frame ("points in common").
+      }
+    }
+  }
+  result.timings.match_ms = msSince(start);
+
+  // 5. Dense refinement against the local map, from the feature estimate; the
+  //    feature-consistency check falls back to dense ICP from the prior, then to the
+  //    prior itself.
+  start = Clock::now();
+  Points3f source;
+  if (params.registration.refine || !features_ok)
+    source = odometry_detail::strideSubsample(
+        odometry_detail::toPoints(*cloud, odometry_detail::voxelDownsampleIndices(
+                                              *cloud, params.dense.source_voxel_size_m, in_range)),
+        static_cast<std::size_t>(params.dense.max_source_points));
+  auto keepDense = [&result](const DenseResult& dense) {
+    result.dense_correspondences = dense.num_correspondences;
+    result.dense_degenerate_directions = dense.degenerate_directions;
+    result.dense_rmse_m = dense.rmse_m;
+  };
+  if (features_ok) {
+    const int inliers = static_cast<int>(ransac.inlier_indices.size());
+    const Pose3d prior_diff = T_world_prior.inverse() * T_world_features;
+    const bool near_prior = prior_diff.translation().norm() <= params.prior_gate_m &&
+                            angleDeg(prior_diff) <= params.prior_gate_deg;
+    result.status = TrackingStatus::kFeatures;
+    result.T_world_lidar = T_world_features;
+    result.message = "features: " + std::to_string(inliers) + " inliers with " + reference;
+    if (params.registration.refine) {
+      DenseResult dense = registerToMap(source, map, T_world_features, params.dense);
+      if (!near_prior && inliers < params.strong_feature_inliers) {
+        // Weak features far from the prior: the better dense fit decides.
+        const DenseResult from_prior = registerToMap(source, map, T_world_prior, params.dense);
+        if (from_prior.success && (!dense.success || from_prior.num_correspondences >
+                                                         dense.num_correspondences)) {
+          dense = from_prior;
+          result.status = TrackingStatus::kDenseFallback;
+          result.degraded = true;
+          result.message = "weak features disagree with the prior: dense from the prior";
+        }
+      }
+      keepDense(dense);
+      if (dense.success) {
+        result.T_world_lidar = dense.T_world_lidar;
+        result.refined = true;
+        result.message += "; " + dense.message;
+      } else {
+        result.degraded = true;
+        result.message += "; refinement failed, feature estimate kept (" + dense.message + ")";
+      }
+    }
+  } else {
+    const DenseResult dense = registerToMap(source, map, T_world_prior, params.dense);
+    keepDense(dense);
+    result.degraded = true;
+    const std::string why = "feature-consistency check failed (" +
+                            std::to_string(result.num_inliers) + " inliers < " +
+                            std::to_string(params.min_feature_inliers) + ")";
+    // Dense ICP alone from a wrong prior can settle on the ground plane with the wrong
+    // yaw; accept it only when most of the scan pairs with the map.
+    const bool well_paired = dense.num_correspondences >=
+                             kMinFallbackPairedRatio * std::max(1, dense.num_source_points);
+    if (dense.success && dense.degenerate_directions == 0 && well_paired) {
+      result.status = TrackingStatus::kDenseFallback;
+      result.T_world_lidar = dense.T_world_lidar;
+      result.refined = true;
+      result.message = why + ": dense ICP from the prior; " + dense.message;
+    } else {
+      // The prior, corrected only along the directions the scan constrains (e.g. the
+      // ground's height, roll and pitch on an open field).
+      result.status = TrackingStatus::kConstantVelocity;
+      if (dense.success)
+        result.T_world_lidar = dense.T_world_lidar;
+      result.message = why + ": constant-velocity prediction (" + dense.message + ")";
+    }
+  }
+  result.timings.refine_ms = msSince(start);
+
+  // 6. Key-frame decision: the paper's rule (sec. 7.3) plus safety rules.
+  start = Clock::now();
+  result.T_keyframe_lidar = T_world_keyframe.inverse() * result.T_world_lidar;
+  const bool tracked = result.status == TrackingStatus::kFeatures ||
+                       (result.status == TrackingStatus::kDenseFallback && result.refined);
+  const int frames_since = frames_since_keyframe + 1;
+  const bool paper_rule = frames_since >= params.keyframe_min_frames &&
+                          result.num_inliers <= params.keyframe_max_common_points;
+  const bool far = result.T_keyframe_lidar.translation().norm() > params.keyframe_max_distance_m ||
+                   angleDeg(result.T_keyframe_lidar) > params.keyframe_max_rotation_deg;
+  const bool useful = result.num_features >= params.keyframe_min_inliers;
+  const bool weak = result.num_inliers < params.keyframe_min_inliers && useful;
+  const bool reanchor = frames_without_tracking + 1 >= kReanchorAfterFrames && useful;
+  if ((tracked && (paper_rule || far || weak)) || reanchor) {
+    result.keyframe = makeKeyFrame(result, std::move(*features), *cloud);
+    result.reference_keyframe = result.keyframe->id;
+    result.T_keyframe_lidar = Pose3d::Identity();
+    if (!tracked) {
+      result.degraded = true;
+      result.message += "; re-anchored: new key-frame after a stretch without tracking";
+    }
+  }
+  result.timings.keyframe_ms = msSince(start);
+  if (tracked && !result.keyframe) {
+    last_features = features;
+    T_world_last_features = result.T_world_lidar;
+  } else if (result.keyframe) {
+    last_features.reset(); // the key-frame itself is now the closest reference
+  }
+  result.timings.total_ms = msSince(frame_start);
+  return result;
+}
+
+// ---------------------------------------------------------------------------
+
+Odometry::Odometry(const OdometryParams& params)
+{
+  std::string why;
+  if (!params.isValid(&why))
+    throw std::invalid_argument("Odometry: invalid params: " + why);
+  impl_ = std::make_unique<Impl>(params);
+}
+
+Odometry::~Odometry() = default;
+
+const OdometryParams&
+Odometry::params() const
+{
+  return impl_->params;
+}
+
+std::size_t
+Odometry::numKeyFrames() const
+{
+  return impl_->next_keyframe_id;
+}
+
+std::size_t
+Odometry::localMapSize() const
+{
+  return impl_->map.size();
+}
+
+OdometryFrameResult
+Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                       double timestamp_s,
+                       std::size_t frame_index)
+{
+  impl_->checkIndex(frame_index);
+  const auto start = Clock::now();
+  OdometryFrameResult result;
+  result.frame_index = frame_index;
+  result.timestamp_s = timestamp_s;
+  if (!cloud)
+    return impl_->skip(timestamp_s, frame_index, "null cloud");
+  try {
+    result = impl_->track(cloud, result);
+  } catch (const std::exception& e) {
+    // Bad data must not stop the odometry: report it and predict.
+    result = OdometryFrameResult();
+    result.frame_index = frame_index;
+    result.timestamp_s = timestamp_s;
+    result.status = TrackingStatus::kConstantVelocity;
+    result.degraded = true;
+    result.T_world_lidar = impl_->predict(timestamp_s);
+    result.message = std::string("tracking failed: ") + e.what() +
+                     ": constant-velocity prediction";
+  }
+  if (!result.keyframe) {
+    result.reference_keyframe = impl_->keyframe ? impl_->keyframe->id : 0;
+    result.T_keyframe_lidar = impl_->T_world_keyframe.inverse() * result.T_world_lidar;
+  }
+  result.timings.total_ms = std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+  impl_->commitPose(result);
+  return result;
+}
+
+OdometryFrameResult
+Odometry::skipFrame(double timestamp_s, std::size_t frame_index, const std::string& reason)
+{
+  impl_->checkIndex(frame_index);
+  return impl_->skip(timestamp_s, frame_index, reason);
+}
+
+OdometryFrameResult
+Odometry::Impl::skip(double timestamp_s, std::size_t frame_index, const std::string& reason)
+{
+  OdometryFrameResult result;
+  result.frame_index = frame_index;
+  result.timestamp_s = timestamp_s;
+  result.status = TrackingStatus::kSkipped;
+  result.degraded = true;
+  result.T_world_lidar = predict(timestamp_s);
+  result.reference_keyframe = keyframe ? keyframe->id : 0;
+  result.T_keyframe_lidar = T_world_keyframe.inverse() * result.T_world_lidar;
+  result.message = reason + ": constant-velocity prediction";
+  commitPose(result);
+  return result;
+}
+
+} // namespace rast
+} // namespace pcl

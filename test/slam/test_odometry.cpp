@@ -1,0 +1,431 @@
+/// \file test_odometry.cpp
+/// \brief Odometry on simulated sequences (drift, 2 Hz with sharp turns, bad frames,
+/// key-frame rule) and on the real scan pairs of ../shared/data.
+
+#include <pcl/slam/lidar_simulator.h>
+#include <pcl/slam/odometry.h>
+#include <pcl/slam/sequence_reader.h>
+
+#include "test_data.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <limits>
+
+namespace {
+
+namespace rast = pcl::rast;
+using Cloud = pcl::PointCloud<pcl::PointXYZI>;
+
+double
+angleDeg(const rast::Pose3d& T)
+{
+  return Eigen::AngleAxisd(T.rotation()).angle() * 180.0 / M_PI;
+}
+
+/// A simulated HDL-64 sequence: scans and ground-truth poses re-based on frame 0.
+struct Sequence
+{
+  std::vector<Cloud::Ptr> scans;
+  rast::PoseVector T_world_lidar; ///< ground truth, first pose identity
+  std::vector<double> times;
+};
+
+Sequence
+simulate(const rast::PoseVector& T_world_body, std::size_t every = 1, std::uint64_t seed = 7)
+{
+  rast::LidarSimulatorParams params;
+  params.seed = seed;
+  params.num_threads = 2;
+  rast::LidarSimulator sim(params, T_world_body);
+  Sequence seq;
+  const rast::Pose3d T0_inv = sim.sensorPose(0).inverse();
+  for (std::size_t i = 0; i < sim.numFrames(); i += every) {
+    auto cloud = std::make_shared<Cloud>();
+    sim.simulateFrame(i, *cloud);
+    seq.scans.push_back(cloud);
+    seq.T_world_lidar.push_back(T0_inv * sim.sensorPose(i));
+    seq.times.push_back(sim.timestamp(i));
+  }
+  return seq;
+}
+
+/// A city drive at 10 m/s, 10 Hz: straight, a 90 deg left turn, straight.
+rast::PoseVector
+drivePath(int num_frames)
+{
+  rast::PathParams path;
+  path.type = rast::PathType::kLoop;
+  path.num_frames = num_frames;
+  return rast::generatePath(path);
+}
+
+/// Run the odometry over a sequence; returns the results.
+std::vector<rast::OdometryFrameResult>
+run(rast::Odometry& odometry, const Sequence& seq)
+{
+  std::vector<rast::OdometryFrameResult> results;
+  for (std::size_t i = 0; i < seq.scans.size(); ++i) {
+    results.push_back(odometry.processFrame(seq.scans[i], seq.times[i], i));
+    if (std::getenv("ODOM_DEBUG")) {
+      const auto& r = results.back();
+      const rast::Pose3d e = seq.T_world_lidar[i].inverse() * r.T_world_lidar;
+      std::cout << i << " " << rast::toString(r.status) << " f=" << r.num_features
+                << " m=" << r.num_matches << " in=" << r.num_inliers << " kf=" << (r.keyframe != nullptr)
+                << " err=" << e.translation().norm() << "m " << angleDeg(e) << "deg : " << r.message << "\n";
+    }
+  }
+  return results;
+}
+
+/// The end-point error of the estimate vs ground truth, relative to path length.
+void
+expectSmallDrift(const Sequence& seq,
+                 const std::vector<rast::OdometryFrameResult>& results,
+                 double max_translation_pct,
+                 double max_rotation_deg)
+{
+  double length = 0.0;
+  for (std::size_t i = 1; i < seq.T_world_lidar.size(); ++i)
+    length += (seq.T_world_lidar[i].translation() - seq.T_world_lidar[i - 1].translation()).norm();
+  const rast::Pose3d error = seq.T_world_lidar.back().inverse() * results.back().T_world_lidar;
+  std::cout << "[ drift ] " << seq.scans.size() << " frames, " << length << " m: end error "
+            << error.translation().norm() * 100.0 << " cm ("
+            << 100.0 * error.translation().norm() / length << " %), " << angleDeg(error)
+            << " deg\n";
+  EXPECT_LE(100.0 * error.translation().norm() / length, max_translation_pct);
+  EXPECT_LE(angleDeg(error), max_rotation_deg);
+}
+
+TEST(OdometryParams, DefaultsAreValidAndBadValuesAreRejected)
+{
+  rast::OdometryParams params;
+  std::string why;
+  EXPECT_TRUE(params.isValid(&why)) << why;
+
+  auto expectInvalid = [](rast::OdometryParams p, const std::string& field) {
+    std::string reason;
+    EXPECT_FALSE(p.isValid(&reason)) << field;
+    EXPECT_NE(reason.find(field), std::string::npos) << reason;
+    EXPECT_THROW(rast::Odometry odometry(p), std::invalid_argument);
+  };
+  params = rast::OdometryParams();
+  params.keyframe_min_frames = 0;
+  expectInvalid(params, "keyframe_min_frames");
+  params = rast::OdometryParams();
+  params.min_feature_inliers = 2;
+  expectInvalid(params, "min_feature_inliers");
+  params = rast::OdometryParams();
+  params.max_range_m = std::numeric_limits<double>::quiet_NaN();
+  expectInvalid(params, "max_range_m");
+  params = rast::OdometryParams();
+  params.dense.map_voxel_size_m = 0.0;
+  expectInvalid(params, "dense.map_voxel_size_m");
+  params = rast::OdometryParams();
+  params.orb.max_features = 0;
+  expectInvalid(params, "orb.");
+}
+
+TEST(Odometry, StatusNames)
+{
+  EXPECT_STREQ(rast::toString(rast::TrackingStatus::kFeatures), "features");
+  EXPECT_STREQ(rast::toString(rast::TrackingStatus::kDenseFallback), "dense_fallback");
+  EXPECT_STREQ(rast::toString(rast::TrackingStatus::kConstantVelocity), "constant_velocity");
+  EXPECT_STREQ(rast::toString(rast::TrackingStatus::kSkipped), "skipped");
+  EXPECT_STREQ(rast::toString(rast::TrackingStatus::kFirstFrame), "first_frame");
+}
+
+TEST(Odometry, SimulatedDriveHasSmallDriftAndConsistentKeyFrames)
+{
+  const Sequence seq = simulate(drivePath(100));
+  rast::Odometry odometry;
+  const auto results = run(odometry, seq);
+  ASSERT_EQ(results.size(), seq.scans.size());
+  EXPECT_EQ(results[0].status, rast::TrackingStatus::kFirstFrame);
+  EXPECT_TRUE(results[0].T_world_lidar.isApprox(rast::Pose3d::Identity()));
+  ASSERT_TRUE(results[0].keyframe);
+  int degraded = 0;
+  for (const auto& r : results)
+    degraded += r.degraded;
+  EXPECT_EQ(degraded, 0);
+  expectSmallDrift(seq, results, 0.3, 0.2);
+
+  // Key-frames: ids in order, relative motion consistent with their poses, features in
+  // the key-frame's LiDAR frame (each lies near a point of its own voxelized cloud).
+  rast::KeyFrame::Ptr previous;
+  rast::KeyFrameId expected_id = 0;
+  for (const auto& r : results) {
+    EXPECT_TRUE(r.T_keyframe_lidar.isApprox(r.T_keyframe_lidar)); // finite
+    if (!r.keyframe)
+      continue;
+    const auto& kf = *r.keyframe;
+    EXPECT_EQ(kf.id, expected_id++);
+    EXPECT_EQ(kf.frame_index, r.frame_index);
+    EXPECT_EQ(r.reference_keyframe, kf.id);
+    EXPECT_TRUE(kf.T_world_keyframe.isApprox(r.T_world_lidar));
+    ASSERT_TRUE(kf.cloud);
+    EXPECT_GT(kf.cloud->size(), 1000u);
+    EXPECT_LT(kf.cloud->size(), seq.scans[r.frame_index]->size() / 2);
+    EXPECT_EQ(kf.features.points.size(), kf.features.descriptors.size());
+    EXPECT_EQ(kf.map_point_ids.size(), kf.features.size());
+    if (previous) {
+      const rast::Pose3d expected = previous->T_world_keyframe.inverse() * kf.T_world_keyframe;
+      EXPECT_TRUE(kf.T_previous_keyframe.isApprox(expected, 1e-9));
+    }
+    int near = 0;
+    for (const auto& f : kf.features.points)
+      for (const auto& p : seq.scans[r.frame_index]->points)
+        if ((p.getVector3fMap() - f.getVector3fMap()).squaredNorm() < 1e-6f) {
+          ++near;
+          break;
+        }
+    EXPECT_EQ(near, static_cast<int>(kf.features.size())) << "key-frame " << kf.id;
+    previous = r.keyframe;
+  }
+  EXPECT_GE(odometry.numKeyFrames(), 5u);
+  EXPECT_LT(odometry.numKeyFrames(), results.size() / 2);
+}
+
+TEST(Odometry, TwoHertzWithSharpTurnsStillTracks)
+{
+  // 2 Hz: 5 m between scans, then a turn of 40 + 45 deg over two scans.
+  rast::PoseVector path;
+  rast::Pose3d T = rast::Pose3d::Identity();
+  const double yaw_steps_deg[] = {0, 0, 0, 0, 40, 45, 0, 0, 0, 0, -35, 0, 0, 0};
+  for (const double yaw : yaw_steps_deg) {
+    T = T * Eigen::AngleAxisd(yaw * M_PI / 180.0, Eigen::Vector3d::UnitZ());
+    path.push_back(T);
+    T.translation() += T.rotation() * Eigen::Vector3d(yaw == 0 ? 5.0 : 3.0, 0.0, 0.0);
+  }
+  for (auto& p : path)
+    p.translation().z() = 1.73;
+  const Sequence seq = simulate(path);
+  rast::Odometry odometry;
+  const auto results = run(odometry, seq);
+  int tracked = 0;
+  for (std::size_t i = 1; i < results.size(); ++i) {
+    const rast::Pose3d error = seq.T_world_lidar[i].inverse() * results[i].T_world_lidar;
+    EXPECT_LT(error.translation().norm(), 0.3) << "frame " << i << ": " << results[i].message;
+    EXPECT_LT(angleDeg(error), 1.0) << "frame " << i;
+    tracked += results[i].status == rast::TrackingStatus::kFeatures;
+  }
+  EXPECT_EQ(tracked, static_cast<int>(results.size()) - 1);
+}
+
+/// A flat, featureless ground plane (an open field) around the sensor.
+Cloud::Ptr
+openField(double height_m = -1.73)
+{
+  auto cloud = std::make_shared<Cloud>();
+  for (double r = 3.0; r < 60.0; r *= 1.03)
+    for (int a = 0; a < 720; ++a) {
+      pcl::PointXYZI p;
+      p.x = static_cast<float>(r * std::cos(a * M_PI / 360.0));
+      p.y = static_cast<float>(r * std::sin(a * M_PI / 360.0));
+      p.z = static_cast<float>(height_m);
+      p.intensity = 0.5f;
+      cloud->push_back(p);
+    }
+  return cloud;
+}
+
+TEST(Odometry, BadFramesAreFlaggedAndTrackingGoesOn)
+{
+  const Sequence seq = simulate(drivePath(40));
+  rast::Odometry odometry;
+  std::vector<rast::OdometryFrameResult> results;
+  std::size_t index = 0;
+  auto feed = [&](const Cloud::ConstPtr& cloud, double t) {
+    results.push_back(odometry.processFrame(cloud, t, index++));
+    return results.back();
+  };
+  for (std::size_t i = 0; i < 10; ++i)
+    EXPECT_FALSE(feed(seq.scans[i], seq.times[i]).degraded) << results.back().message;
+
+  // A huge outlier far away: ignored, the frame tracks normally.
+  auto outlier = std::make_shared<Cloud>(*seq.scans[10]);
+  pcl::PointXYZI far;
+  far.x = 1e7f;
+  far.y = -3e6f;
+  far.z = 5e5f;
+  outlier->push_back(far);
+  auto r = feed(outlier, seq.times[10]);
+  EXPECT_EQ(r.status, rast::TrackingStatus::kFeatures) << r.message;
+  EXPECT_FALSE(r.degraded);
+
+  // Bad frames at the times of scans 11..16: each flagged, none throws.
+  auto nan_cloud = std::make_shared<Cloud>();
+  for (int k = 0; k < 1000; ++k) {
+    pcl::PointXYZI p;
+    p.x = p.y = p.z = std::numeric_limits<float>::quiet_NaN();
+    nan_cloud->push_back(p);
+  }
+  const std::vector<Cloud::ConstPtr> bad = {std::make_shared<Cloud>(), nan_cloud, openField(),
+                                            openField(), nullptr};
+  std::size_t t = 11;
+  for (const auto& cloud : bad) {
+    r = feed(cloud, seq.times[t++]);
+    EXPECT_TRUE(r.degraded) << "bad frame " << t - 1 << ": " << r.message;
+    EXPECT_NE(r.status, rast::TrackingStatus::kFeatures);
+    EXPECT_FALSE(r.keyframe);
+    EXPECT_TRUE(r.T_world_lidar.matrix().allFinite());
+    EXPECT_FALSE(r.message.empty());
+  }
+  // The open field keeps the constant-velocity guess (x, y, yaw unconstrained).
+  EXPECT_EQ(results[13].status, rast::TrackingStatus::kConstantVelocity) << results[13].message;
+  // A frame without points is skipped.
+  EXPECT_EQ(results[11].status, rast::TrackingStatus::kSkipped);
+  EXPECT_EQ(results[12].status, rast::TrackingStatus::kSkipped);
+
+  // Good scans again: tracking recovers; poses stay close to the ground truth (the
+  // constant-velocity guesses were right for this smooth path).
+  for (; t < seq.scans.size(); ++t) {
+    r = feed(seq.scans[t], seq.times[t]);
+    const rast::Pose3d error = seq.T_world_lidar[t].inverse() * r.T_world_lidar;
+    EXPECT_LT(error.translation().norm(), 0.5) << "frame " << t << ": " << r.message;
+  }
+  EXPECT_EQ(results.back().status, rast::TrackingStatus::kFeatures) << results.back().message;
+}
+
+TEST(Odometry, KeyFrameRuleOfThePaper)
+{
+  const Sequence seq = simulate(drivePath(30));
+  rast::OdometryParams params;
+  // Only the paper's rule: safety rules off.
+  params.keyframe_min_inliers = 0;
+  params.keyframe_max_distance_m = 1e6;
+  params.keyframe_max_rotation_deg = 1e6;
+  params.keyframe_min_frames = 4;
+  params.keyframe_max_common_points = 100000; // always "few points in common"
+  {
+    rast::Odometry odometry(params);
+    const auto results = run(odometry, seq);
+    for (const auto& r : results)
+      EXPECT_EQ(static_cast<bool>(r.keyframe), r.frame_index % 4 == 0) << r.frame_index;
+  }
+  params.keyframe_max_common_points = 0; // never few enough: only the first frame
+  {
+    rast::Odometry odometry(params);
+    const auto results = run(odometry, seq);
+    EXPECT_EQ(odometry.numKeyFrames(), 1u);
+    for (const auto& r : results) {
+      EXPECT_EQ(r.reference_keyframe, 0u);
+      EXPECT_TRUE(r.T_keyframe_lidar.isApprox(r.T_world_lidar, 1e-9)); // KF 0 is the world
+    }
+  }
+  // With the safety rules: a key-frame at the latest every keyframe_max_distance_m.
+  params = rast::OdometryParams();
+  params.keyframe_max_distance_m = 3.0;
+  params.keyframe_max_common_points = 0;
+  rast::Odometry odometry(params);
+  const auto results = run(odometry, seq);
+  for (const auto& r : results)
+    EXPECT_LE(r.T_keyframe_lidar.translation().norm(), 3.0 + 1.5);
+  EXPECT_GE(odometry.numKeyFrames(), 7u);
+}
+
+TEST(Odometry, SkipFrameExtrapolatesAndIndicesMustIncrease)
+{
+  rast::PoseVector straight;
+  for (int i = 0; i < 6; ++i)
+    straight.emplace_back(Eigen::Translation3d(1.0 * i, 0.0, 1.73));
+  const Sequence seq = simulate(straight);
+  rast::Odometry odometry;
+  for (std::size_t i = 0; i < 4; ++i)
+    odometry.processFrame(seq.scans[i], seq.times[i], i);
+  const auto r = odometry.skipFrame(seq.times[4], 4, "unreadable");
+  EXPECT_EQ(r.status, rast::TrackingStatus::kSkipped);
+  EXPECT_TRUE(r.degraded);
+  EXPECT_NE(r.message.find("unreadable"), std::string::npos);
+  const rast::Pose3d error = seq.T_world_lidar[4].inverse() * r.T_world_lidar;
+  EXPECT_LT(error.translation().norm(), 0.1); // straight at constant speed
+  EXPECT_THROW(odometry.processFrame(seq.scans[5], seq.times[5], 4), std::invalid_argument);
+  EXPECT_EQ(odometry.processFrame(seq.scans[5], seq.times[5], 5).status,
+            rast::TrackingStatus::kFeatures);
+}
+
+// ---- real data ----
+
+Eigen::Isometry3d
+readMatrix4(const std::filesystem::path& path)
+{
+  std::ifstream in(path);
+  Eigen::Matrix4d m;
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c)
+      in >> m(r, c);
+  Eigen::Isometry3d T;
+  T.matrix() = m;
+  return T;
+}
+
+/// Track the target (frame 0) then the source (frame 1): the second pose is T_target_source.
+rast::Pose3d
+trackPair(const std::string& target, const std::string& source)
+{
+  rast::Odometry odometry;
+  const auto first = odometry.processFrame(rast::readScan(target), 0.0, 0);
+  EXPECT_EQ(first.status, rast::TrackingStatus::kFirstFrame);
+  const auto second = odometry.processFrame(rast::readScan(source), 0.1, 1);
+  EXPECT_EQ(second.status, rast::TrackingStatus::kFeatures) << second.message;
+  EXPECT_TRUE(second.refined) << second.message;
+  return second.T_world_lidar;
+}
+
+TEST(OdometryRealData, ScanPairPly)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  const auto dir = data / "scan-pair-ply";
+  const rast::Pose3d reference = readMatrix4(dir / "T_target_source.txt");
+  const rast::Pose3d T = trackPair((dir / "target.ply").string(), (dir / "source.ply").string());
+  const rast::Pose3d error = reference.inverse() * T;
+  std::cout << "[ scan-pair-ply ] " << 100.0 * error.translation().norm() << " cm, "
+            << angleDeg(error) << " deg\n";
+  EXPECT_LE(error.translation().norm(), 0.05);
+  EXPECT_LE(angleDeg(error), 0.2);
+}
+
+TEST(OdometryRealData, ScanPairPcd)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  const auto dir = data / "scan-pair-pcd";
+  const rast::Pose3d reference = readMatrix4(dir / "relative.txt");
+  const rast::Pose3d T =
+      trackPair((dir / "251370668.pcd").string(), (dir / "251371071.pcd").string());
+  const rast::Pose3d error = reference.inverse() * T;
+  std::cout << "[ scan-pair-pcd ] " << 100.0 * error.translation().norm() << " cm, "
+            << angleDeg(error) << " deg\n";
+  EXPECT_LE(error.translation().norm(), 0.05);
+  // relative.txt and scan-pair-ply's T_target_source.txt (the same scans) disagree by
+  // 0.23 deg, mostly roll (doc/registration.md): 0.2 deg to both cannot hold.
+  EXPECT_LE(angleDeg(error), 0.3);
+}
+
+TEST(OdometryRealData, KittiRawMotionIsSmooth)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  for (const char* name : {"kitti-raw-22", "kitti-raw-78"}) {
+    rast::SequenceReader reader((data / name).string());
+    rast::Odometry odometry;
+    std::vector<rast::Pose3d, Eigen::aligned_allocator<rast::Pose3d>> poses;
+    for (std::size_t i = 0; i < reader.size(); ++i) {
+      const auto frame = reader.read(i);
+      const auto r = odometry.processFrame(frame.cloud, static_cast<double>(i), i);
+      EXPECT_FALSE(r.degraded) << name << " frame " << i << ": " << r.message;
+      poses.push_back(r.T_world_lidar);
+    }
+    // Frame-to-frame motion: forward, no jumps (acceleration bounded), little rotation.
+    for (std::size_t i = 2; i < poses.size(); ++i) {
+      const rast::Pose3d d1 = poses[i - 2].inverse() * poses[i - 1];
+      const rast::Pose3d d2 = poses[i - 1].inverse() * poses[i];
+      EXPECT_LT((d2.translation() - d1.translation()).norm(), 0.15) << name << " frame " << i;
+      EXPECT_LT(angleDeg(d2), 3.0) << name << " frame " << i;
+      EXPECT_LT(d2.translation().norm(), 1.5) << name << " frame " << i;
+    }
+  }
+}
+
+} // namespace

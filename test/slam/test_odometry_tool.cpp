@@ -1,0 +1,156 @@
+/// \file test_odometry_tool.cpp
+/// \brief The command-line contract of pcl_rast_odometry: files written (one pose per
+/// input frame, first pose identity), timing.csv columns, unreadable frames skipped
+/// with the constant-velocity pose, exit codes on bad arguments.
+
+#include <pcl/slam/lidar_simulator.h>
+#include <pcl/slam/pose_io.h>
+#include <pcl/slam/sequence_reader.h>
+
+#include "test_data.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <sys/wait.h>
+#include <vector>
+
+namespace {
+
+namespace fs = std::filesystem;
+
+int
+runOdometry(const std::string& args, const fs::path& log)
+{
+  const std::string tool = pcl_rast_test::toolPath("pcl_rast_odometry");
+  const std::string cmd = "'" + tool + "' " + args + " > '" + log.string() + "' 2>&1";
+  const int status = std::system(cmd.c_str());
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+std::vector<std::string>
+readLines(const fs::path& path)
+{
+  std::ifstream in(path);
+  std::vector<std::string> lines;
+  for (std::string line; std::getline(in, line);)
+    if (!line.empty())
+      lines.push_back(line);
+  return lines;
+}
+
+std::string
+readAll(const fs::path& path)
+{
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+class OdometryTool : public ::testing::Test
+{
+protected:
+  void
+  SetUp() override
+  {
+    if (!fs::exists(pcl_rast_test::toolPath("pcl_rast_odometry")))
+      FAIL() << "pcl_rast_odometry is not built: build the tools target first";
+    dir_ = pcl_rast_test::makeTempDir("odometry_tool");
+    log_ = dir_ / "log.txt";
+  }
+  /// A 12-frame simulated HDL-64 sequence (KITTI layout with times.txt).
+  fs::path
+  sequence()
+  {
+    const fs::path seq = dir_ / "seq";
+    rast_params_.seed = 3;
+    rast_params_.num_threads = 2;
+    pcl::rast::PathParams path;
+    path.type = pcl::rast::PathType::kStraight;
+    path.num_frames = 12;
+    pcl::rast::LidarSimulator sim(rast_params_, pcl::rast::generatePath(path));
+    sim.writeSequence(seq.string(), pcl::rast::ScanFormat::kBin, 0, 11);
+    return seq;
+  }
+  fs::path dir_, log_;
+  pcl::rast::LidarSimulatorParams rast_params_;
+};
+
+TEST_F(OdometryTool, WritesPosesAndTimingForEveryFrame)
+{
+  const fs::path seq = sequence();
+  // An unreadable frame in the middle: skipped, constant-velocity pose, reported.
+  std::ofstream(seq / "velodyne" / "000005.bin") << "garbage";
+  const fs::path out = dir_ / "out";
+  ASSERT_EQ(runOdometry("-input '" + seq.string() + "' -output '" + out.string() + "'", log_), 0)
+      << readAll(log_);
+  const std::string log = readAll(log_);
+  EXPECT_NE(log.find("000005.bin"), std::string::npos) << log;
+
+  const auto kitti = pcl::rast::readTrajectory((out / "poses_kitti.txt").string());
+  ASSERT_EQ(kitti.poses.size(), 12u);
+  EXPECT_TRUE(kitti.poses[0].isApprox(pcl::rast::Pose3d::Identity(), 1e-9));
+  const auto gt = pcl::rast::readTrajectory((seq / "poses.txt").string());
+  for (std::size_t i = 0; i < 12; ++i)
+    EXPECT_LT((kitti.poses[i].translation() - gt.poses[i].translation()).norm(), 0.1) << i;
+
+  const auto tum = pcl::rast::readTrajectory((out / "poses_tum.txt").string());
+  ASSERT_EQ(tum.poses.size(), 12u);
+  const auto times = readLines(seq / "times.txt");
+  ASSERT_EQ(times.size(), 12u);
+  EXPECT_NEAR(tum.timestamps_s[7], std::stod(times[7]), 1e-6);
+
+  const auto timing = readLines(out / "timing.csv");
+  ASSERT_EQ(timing.size(), 13u);
+  EXPECT_EQ(timing[0].rfind("frame,status,ground_ms,raster_ms,orb_ms,match_ms,refine_ms,"
+                            "keyframe_ms,total_ms,num_features,num_inliers,keyframe",
+                            0),
+            0u)
+      << timing[0];
+  EXPECT_EQ(timing[1].rfind("0,first_frame,", 0), 0u) << timing[1];
+  EXPECT_EQ(timing[6].rfind("5,skipped,", 0), 0u) << timing[6];
+  EXPECT_EQ(timing[7].rfind("6,features,", 0), 0u) << timing[7];
+  for (const auto& row : timing)
+    EXPECT_EQ(std::count(row.begin(), row.end(), ','), std::count(timing[0].begin(), timing[0].end(), ','));
+  // Atomic writes leave no temporaries behind.
+  for (const auto& entry : fs::directory_iterator(out))
+    EXPECT_EQ(entry.path().extension(), entry.path().extension() == ".csv" ? ".csv" : ".txt")
+        << entry.path();
+}
+
+TEST_F(OdometryTool, FrameSelection)
+{
+  const fs::path seq = sequence();
+  const fs::path out = dir_ / "out";
+  ASSERT_EQ(runOdometry("-input '" + seq.string() + "' -output '" + out.string() +
+                            "' -first 2 -last 10 -stride 4 -sensor hdl64",
+                        log_),
+            0)
+      << readAll(log_);
+  EXPECT_EQ(readLines(out / "poses_kitti.txt").size(), 3u);
+  EXPECT_EQ(readLines(out / "timing.csv").size(), 4u);
+}
+
+TEST_F(OdometryTool, BadArgumentsExitOneBeforeAnyWork)
+{
+  const fs::path out = dir_ / "out";
+  const std::string io = " -output '" + out.string() + "'";
+  EXPECT_EQ(runOdometry("-input /nonexistent/folder" + io, log_), 1);
+  EXPECT_EQ(runOdometry(io, log_), 1); // -input missing
+  EXPECT_EQ(runOdometry("-input . -output '" + out.string() + "' -bogus 3", log_), 1);
+  EXPECT_EQ(runOdometry("-input . -output '" + out.string() + "' -stride 0", log_), 1);
+  EXPECT_EQ(runOdometry("-input . -output '" + out.string() + "' -sensor lidar9000", log_), 1);
+  EXPECT_EQ(runOdometry("-input . -output '" + out.string() + "' -keyframe-min-frames 0", log_),
+            1);
+  EXPECT_EQ(runOdometry("-input . -output '" + out.string() + "' -max-features abc", log_), 1);
+  EXPECT_FALSE(fs::exists(out)) << "bad arguments must fail before any work";
+  EXPECT_EQ(runOdometry("-h", log_), 0);
+  EXPECT_NE(readAll(log_).find("-keyframe-min-frames"), std::string::npos);
+}
+
+} // namespace
