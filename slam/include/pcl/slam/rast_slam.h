@@ -1,0 +1,190 @@
+#pragma once
+/// \file rast_slam.h
+/// \brief The whole SLAM system of the paper for PCL users: tracking (Odometry),
+/// local mapping (LocalMapping: map points, local BA, culling) and loop closing
+/// (LoopDetector + pose graph) running as three stages that hand key-frames over through
+/// queues, on three threads or, in deterministic mode, in sequence on the caller's.
+/// \ingroup slam
+///
+/// \code
+/// pcl::rast::RastSlam slam(pcl::rast::SlamParams{});
+/// for (i, cloud, t) in scans: slam.addScan(cloud, t, i);
+/// slam.finish();                             // drains the queues, joins the threads
+/// pcl::rast::PoseVector poses = slam.framePoses();  // one per input frame, corrected
+/// auto map = slam.buildMap(0.2);             // merged, voxelized, intensity kept
+/// \endcode
+
+#include <pcl/slam/local_mapping.h>
+#include <pcl/slam/loop_detector.h>
+#include <pcl/slam/odometry.h>
+#include <pcl/slam/pose_graph.h>
+#include <pcl/slam/slam_map.h>
+
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+
+#include <cstddef>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace pcl {
+namespace rast {
+
+/// \brief Settings of the loop-closing stage beyond the detector and the optimizer.
+struct LoopClosingParams
+{
+  bool enable = true; ///< detect loops at all (off: odometry + local mapping only)
+  /// Odometry edges: translation sigma = base + per_m * |t| [m], rotation sigma =
+  /// base + per_m * |t| [rad]: tracking's drift grows with the distance between
+  /// key-frames.
+  double odometry_sigma_t_base_m = 0.02;
+  double odometry_sigma_t_per_m = 0.01;
+  double odometry_sigma_r_base_rad = 0.001;
+  double odometry_sigma_r_per_m_rad = 0.0005;
+  /// Loop edges: sigma at reference_inliers inliers, scaled by sqrt(reference / inliers).
+  double loop_sigma_t_m = 0.1;
+  double loop_sigma_r_rad = 0.005;
+  int loop_reference_inliers = 50;
+  /// After optimizing, loop edges with chi2 above this are dropped and the graph is
+  /// re-optimized (6 dof: 22.5 = 99.9 %).
+  double inconsistent_chi2 = 22.5;
+  /// Run a global bundle adjustment (all key-frames, all map points, loop edges as
+  /// pose constraints) after each pose-graph optimization: the paper's comparison.
+  /// Keeps every map point (no culling from memory), so it is for measurements only.
+  bool global_bundle_adjustment = false;
+  int global_ba_max_iterations = 20;
+
+  bool isValid(std::string* why = nullptr) const;
+};
+
+/// \brief All settings of RastSlam; the defaults suit a car-mounted HDL-64 at 10 Hz.
+struct SlamParams
+{
+  OdometryParams odometry;
+  LocalMappingParams local_mapping;
+  LoopDetectorParams loop_detector;
+  PoseGraphOptions pose_graph;
+  LoopClosingParams loop_closing;
+  /// true: tracking, local mapping and loop closing run in sequence on the caller's
+  /// thread (same input, same output). false: local mapping and loop closing run on
+  /// their own threads, tracking on the caller's.
+  bool deterministic = false;
+  /// Each key-frame's cloud is kept for the merged map at this voxel size [m]
+  /// (<= 0: tracking's voxelized cloud is shared, no copy). A leaf coarser than
+  /// tracking's key-frame voxel bounds the memory of long sequences.
+  double map_cloud_leaf_m = 0.0;
+
+  bool isValid(std::string* why = nullptr) const;
+};
+
+/// \brief Wall-time statistics of one stage [ms].
+struct StageTiming
+{
+  std::size_t count = 0;
+  double mean_ms = 0.0;
+  double median_ms = 0.0;
+  double max_ms = 0.0;
+  double total_ms = 0.0;
+};
+
+/// \brief Counts and timings of a run.
+struct SlamStatistics
+{
+  std::size_t frames = 0;          ///< input frames (skipped included)
+  std::size_t skipped_frames = 0;  ///< frames without a usable scan
+  std::size_t keyframes = 0;
+  std::size_t map_points = 0;         ///< live (local map) map points
+  std::size_t map_points_created = 0; ///< ever created
+  std::size_t loops_accepted = 0;     ///< verified loops (edges added)
+  std::size_t loops_rejected = 0;     ///< verifications that failed
+  std::size_t loops_inconsistent = 0; ///< accepted, later dropped by the pose graph
+  std::size_t loop_candidates = 0;    ///< candidates proposed
+  std::size_t pose_graph_runs = 0;
+  std::map<std::string, std::size_t> tracking_status; ///< frames per tracking status
+  /// Per stage: "tracking" (per frame), "local_mapping" (per key-frame),
+  /// "loop_detection" (per key-frame), "pose_graph" (per optimization),
+  /// "global_ba" (per run).
+  std::map<std::string, StageTiming> timing;
+};
+
+/// \brief One verification of the loop-closing stage, for reports.
+struct LoopRecord
+{
+  LoopVerification verification;
+  LoopCandidateSource source = LoopCandidateSource::kDistance;
+  bool dropped_inconsistent = false;
+};
+
+/// \brief The SLAM system (see the file comment).
+class RastSlam
+{
+public:
+  using Ptr = std::shared_ptr<RastSlam>;
+
+  /// \throws std::invalid_argument when \a params are invalid (the message says why).
+  explicit RastSlam(const SlamParams& params = SlamParams());
+  /// Finishes (joins the threads); errors of the workers are swallowed here, call
+  /// finish() to see them.
+  ~RastSlam();
+  RastSlam(const RastSlam&) = delete;
+  RastSlam& operator=(const RastSlam&) = delete;
+
+  /// \brief Track one scan (LiDAR frame) and hand a new key-frame to the back end.
+  /// Frame indices must increase. \a path is only recorded (for reports).
+  /// \throws std::logic_error after finish(); rethrows an exception of a worker thread.
+  OdometryFrameResult addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                              double timestamp_s,
+                              std::size_t frame_index,
+                              const std::string& path = "");
+
+  /// \brief Account for a frame without a usable scan (constant-velocity pose).
+  OdometryFrameResult addSkippedScan(std::size_t frame_index,
+                                     double timestamp_s,
+                                     const std::string& reason,
+                                     const std::string& path = "");
+
+  /// \brief Process everything queued, stop the worker threads. Idempotent.
+  /// \throws the first exception a worker thread raised (once).
+  void finish();
+
+  /// \brief Corrected pose of every input frame so far (LiDAR frame in the world frame
+  /// of the first scan), in input order.
+  PoseVector framePoses() const;
+  /// \brief Frame records (status, reference key-frame, skipped reason), input order.
+  std::vector<FrameRecord> frames() const;
+  /// \brief Corrected key-frame poses, by id.
+  PoseVector keyFramePoses() const;
+  /// \brief The key-frames (features, clouds), by id.
+  std::vector<KeyFrame::Ptr> keyFrames() const;
+  /// \brief Merged map of all key-frame clouds at their corrected poses.
+  pcl::PointCloud<pcl::PointXYZI>::Ptr buildMap(double leaf_m) const;
+  /// \brief Loop edges accepted (inactive ones were dropped as inconsistent).
+  std::vector<LoopEdge> loops() const;
+  /// \brief Every loop verification made (accepted and rejected).
+  std::vector<LoopRecord> loopRecords() const;
+  SlamStatistics statistics() const;
+  const SlamParams& params() const { return params_; }
+  /// \brief The shared map (read access for viewers; thread-safe).
+  SlamMap::ConstPtr map() const { return map_; }
+
+private:
+  struct Impl;
+  SlamParams params_;
+  SlamMap::Ptr map_;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// \brief Global bundle adjustment of all key-frames and the given map points plus
+/// the loop edges as pose constraints (the paper's comparison to the pose graph);
+/// key-frame 0 is held constant. \return the optimized poses (by id) in \a poses.
+BundleAdjustmentSummary globalBundleAdjustment(std::map<KeyFrameId, Pose3d>& poses,
+                                               const std::vector<KeyFrame::Ptr>& keyframes,
+                                               const std::vector<MapPoint>& points,
+                                               const std::vector<LoopEdge>& loops,
+                                               const LoopClosingParams& loop_params,
+                                               const BundleAdjustmentParams& ba_params);
+
+} // namespace rast
+} // namespace pcl

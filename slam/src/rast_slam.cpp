@@ -1,0 +1,595 @@
+#include <pcl/slam/rast_slam.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <deque>
+#include <exception>
+#include <mutex>
+#include <optional>
+#include <stdexcept>
+#include <thread>
+
+namespace pcl {
+namespace rast {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double
+msSince(Clock::time_point start)
+{
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+/// A FIFO handing work from one stage to the next: push() never blocks, pop() waits on a
+/// condition variable (no polling) until an item arrives or the queue is closed and empty.
+template <typename T>
+class WorkQueue
+{
+public:
+  void push(T item)
+  {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      items_.push_back(std::move(item));
+    }
+    cv_.notify_one();
+  }
+  /// \return false when the queue is closed and drained.
+  bool pop(T& item)
+  {
+    std::unique_lock<std::mutex> lock(mutex_);
+    cv_.wait(lock, [&] { return closed_ || !items_.empty(); });
+    if (items_.empty())
+      return false;
+    item = std::move(items_.front());
+    items_.pop_front();
+    return true;
+  }
+  void close()
+  {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      closed_ = true;
+    }
+    cv_.notify_all();
+  }
+
+private:
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  std::deque<T> items_;
+  bool closed_ = false;
+};
+
+StageTiming
+timingOf(std::vector<double> samples)
+{
+  StageTiming t;
+  t.count = samples.size();
+  if (samples.empty())
+    return t;
+  for (double s : samples) {
+    t.total_ms += s;
+    t.max_ms = std::max(t.max_ms, s);
+  }
+  t.mean_ms = t.total_ms / samples.size();
+  const std::size_t mid = samples.size() / 2;
+  std::nth_element(samples.begin(), samples.begin() + mid, samples.end());
+  t.median_ms = samples[mid];
+  if (samples.size() % 2 == 0) {
+    const double lower = *std::max_element(samples.begin(), samples.begin() + mid);
+    t.median_ms = 0.5 * (t.median_ms + lower);
+  }
+  return t;
+}
+
+/// Diagonal information (translation, rotation) from standard deviations.
+Eigen::Matrix<double, 6, 6>
+diagonalInformation(double sigma_t_m, double sigma_r_rad)
+{
+  Eigen::Matrix<double, 6, 6> info = Eigen::Matrix<double, 6, 6>::Zero();
+  info.diagonal().head<3>().setConstant(1.0 / (sigma_t_m * sigma_t_m));
+  info.diagonal().tail<3>().setConstant(1.0 / (sigma_r_rad * sigma_r_rad));
+  return info;
+}
+
+Eigen::Matrix<double, 6, 6>
+odometryInformation(const Pose3d& T_prev_kf, const LoopClosingParams& p)
+{
+  const double d = T_prev_kf.translation().norm();
+  return diagonalInformation(p.odometry_sigma_t_base_m + p.odometry_sigma_t_per_m * d,
+                             p.odometry_sigma_r_base_rad + p.odometry_sigma_r_per_m_rad * d);
+}
+
+Eigen::Matrix<double, 6, 6>
+loopInformation(int num_inliers, const LoopClosingParams& p)
+{
+  const double scale =
+      std::sqrt(static_cast<double>(p.loop_reference_inliers) / std::max(1, num_inliers));
+  return diagonalInformation(p.loop_sigma_t_m * scale, p.loop_sigma_r_rad * scale);
+}
+
+} // namespace
+
+bool
+LoopClosingParams::isValid(std::string* why) const
+{
+  std::string reason;
+  const auto positive = [](double v) { return v > 0.0 && std::isfinite(v); };
+  const auto non_negative = [](double v) { return v >= 0.0 && std::isfinite(v); };
+  if (!positive(odometry_sigma_t_base_m) || !non_negative(odometry_sigma_t_per_m))
+    reason = "odometry translation sigmas must be > 0 (base) and >= 0 (per metre)";
+  else if (!positive(odometry_sigma_r_base_rad) || !non_negative(odometry_sigma_r_per_m_rad))
+    reason = "odometry rotation sigmas must be > 0 (base) and >= 0 (per metre)";
+  else if (!positive(loop_sigma_t_m) || !positive(loop_sigma_r_rad))
+    reason = "loop sigmas must be > 0, got " + std::to_string(loop_sigma_t_m) + ", " +
+             std::to_string(loop_sigma_r_rad);
+  else if (loop_reference_inliers < 1)
+    reason = "loop_reference_inliers must be >= 1, got " +
+             std::to_string(loop_reference_inliers);
+  else if (!positive(inconsistent_chi2))
+    reason = "inconsistent_chi2 must be > 0, got " + std::to_string(inconsistent_chi2);
+  else if (global_ba_max_iterations < 1)
+    reason = "global_ba_max_iterations must be >= 1, got " +
+             std::to_string(global_ba_max_iterations);
+  if (why && !reason.empty())
+    *why = reason;
+  return reason.empty();
+}
+
+bool
+SlamParams::isValid(std::string* why) const
+{
+  std::string sub, reason;
+  if (!odometry.isValid(&sub))
+    reason = "odometry: " + sub;
+  else if (!local_mapping.isValid(&sub))
+    reason = "local_mapping: " + sub;
+  else if (!loop_detector.isValid(&sub))
+    reason = "loop_detector: " + sub;
+  else if (!pose_graph.isValid(&sub))
+    reason = "pose_graph: " + sub;
+  else if (!loop_closing.isValid(&sub))
+    reason = "loop_closing: " + sub;
+  else if (!std::isfinite(map_cloud_leaf_m))
+    reason = "map_cloud_leaf_m must be finite";
+  if (why && !reason.empty())
+    *why = reason;
+  return reason.empty();
+}
+
+BundleAdjustmentSummary
+globalBundleAdjustment(std::map<KeyFrameId, Pose3d>& poses,
+                       const std::vector<KeyFrame::Ptr>& keyframes,
+                       const std::vector<MapPoint>& points,
+                       const std::vector<LoopEdge>& loops,
+                       const LoopClosingParams& loop_params,
+                       const BundleAdjustmentParams& ba_params)
+{
+  BundleAdjustmentProblem problem;
+  problem.poses = poses;
+  if (!problem.poses.empty())
+    problem.fixed.insert(problem.poses.begin()->first); // gauge: the first key-frame
+  for (const MapPoint& mp : points) {
+    int n = 0;
+    for (const auto& o : mp.observations)
+      n += problem.poses.count(o.keyframe) && o.keyframe < keyframes.size();
+    if (n < 2)
+      continue; // a point seen once does not constrain any pose
+    problem.points[mp.id] = mp.p_world;
+    for (const auto& o : mp.observations)
+      if (problem.poses.count(o.keyframe) && o.keyframe < keyframes.size())
+        problem.observations.push_back(
+            {o.keyframe, mp.id,
+             keyframes[o.keyframe]->features.points[o.feature_index].getVector3fMap().cast<double>()});
+  }
+  // Odometry edges keep key-frames without shared points connected; loop edges carry
+  // the loop (no map point is associated across a loop).
+  for (std::size_t id = 1; id < keyframes.size(); ++id) {
+    if (!problem.poses.count(id) || !problem.poses.count(id - 1))
+      continue;
+    const Pose3d T = keyframes[id]->T_previous_keyframe;
+    problem.pose_constraints.push_back(
+        {static_cast<KeyFrameId>(id - 1), static_cast<KeyFrameId>(id), T,
+         odometryInformation(T, loop_params).cwiseSqrt()});
+  }
+  for (const LoopEdge& e : loops)
+    if (e.active && problem.poses.count(e.candidate) && problem.poses.count(e.query))
+      problem.pose_constraints.push_back(
+          {e.candidate, e.query, e.T_candidate_query,
+           loopInformation(e.num_inliers, loop_params).cwiseSqrt()});
+  BundleAdjustmentSummary summary = bundleAdjust(problem, ba_params);
+  if (summary.success)
+    poses = problem.poses;
+  return summary;
+}
+
+struct RastSlam::Impl
+{
+  const SlamParams& params;
+  SlamMap::Ptr map;
+  Odometry odometry;
+  LocalMapping local_mapping;
+  LoopDetector detector;
+
+  // Threads and the queues between the stages.
+  WorkQueue<KeyFrame::Ptr> mapping_queue, loop_queue;
+  std::thread mapping_thread, loop_thread;
+  bool finished = false;
+  std::mutex error_mutex;
+  std::exception_ptr error;
+  bool error_reported = false;
+
+  // Statistics (own mutex: written by all stages).
+  mutable std::mutex stats_mutex;
+  std::vector<double> tracking_ms, mapping_ms, detection_ms, pose_graph_ms, global_ba_ms;
+  std::map<std::string, std::size_t> status_counts;
+  std::size_t skipped = 0, accepted = 0, rejected = 0, inconsistent = 0, candidates = 0;
+  std::vector<LoopRecord> loop_records;
+
+  Impl(const SlamParams& p, SlamMap::Ptr m)
+    : params(p)
+    , map(std::move(m))
+    , odometry(p.odometry)
+    , local_mapping(p.local_mapping, map)
+    , detector(p.loop_detector)
+  {
+    if (p.loop_closing.global_bundle_adjustment)
+      map->setKeepCulledMapPoints(true);
+    if (!p.deterministic) {
+      mapping_thread = std::thread([this] { runMapping(); });
+      loop_thread = std::thread([this] { runLoopClosing(); });
+    }
+  }
+
+  void recordError(std::exception_ptr e)
+  {
+    {
+      std::lock_guard<std::mutex> lock(error_mutex);
+      if (!error)
+        error = e;
+    }
+    // Unblock everyone: the pipeline stops after an error.
+    mapping_queue.close();
+    loop_queue.close();
+  }
+
+  void rethrowError()
+  {
+    std::lock_guard<std::mutex> lock(error_mutex);
+    if (error && !error_reported) {
+      error_reported = true;
+      std::rethrow_exception(error);
+    }
+  }
+
+  bool failed()
+  {
+    std::lock_guard<std::mutex> lock(error_mutex);
+    return static_cast<bool>(error);
+  }
+
+  void runMapping()
+  {
+    try {
+      KeyFrame::Ptr kf;
+      while (mapping_queue.pop(kf)) {
+        mapKeyFrame(kf);
+        loop_queue.push(kf);
+      }
+    } catch (...) {
+      recordError(std::current_exception());
+    }
+    loop_queue.close();
+  }
+
+  void runLoopClosing()
+  {
+    try {
+      KeyFrame::Ptr kf;
+      while (loop_queue.pop(kf))
+        closeLoops(kf);
+    } catch (...) {
+      recordError(std::current_exception());
+    }
+  }
+
+  void mapKeyFrame(const KeyFrame::Ptr& kf)
+  {
+    const LocalMappingResult r = local_mapping.processKeyFrame(kf);
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    mapping_ms.push_back(r.total_ms);
+  }
+
+  /// The loop-closing stage for one key-frame (after local mapping): search, verify,
+  /// and on an accepted loop optimize the pose graph of all key-frames.
+  void closeLoops(const KeyFrame::Ptr& kf)
+  {
+    const Pose3d T_world_kf = map->keyFramePose(kf->id);
+    if (!params.loop_closing.enable) {
+      return;
+    }
+    const auto start = Clock::now();
+    const LoopDetection detection = detector.detect(*kf, T_world_kf);
+    detector.addKeyFrame(kf, T_world_kf);
+    const double detect_ms = msSince(start);
+    const LoopVerification* best = detection.best();
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      detection_ms.push_back(detect_ms);
+      candidates += detection.candidates.size();
+      accepted += best ? 1 : 0;
+      rejected += static_cast<std::size_t>(detection.num_rejected);
+      for (std::size_t k = 0; k < detection.verifications.size(); ++k) {
+        LoopRecord rec;
+        rec.verification = detection.verifications[k];
+        if (k < detection.candidates.size())
+          rec.source = detection.candidates[k].source;
+        loop_records.push_back(rec);
+      }
+    }
+    if (!best)
+      return;
+    LoopEdge edge;
+    edge.query = best->query;
+    edge.candidate = best->candidate;
+    edge.T_candidate_query = best->T_candidate_query;
+    edge.num_inliers = best->num_inliers;
+    map->addLoopEdge(edge);
+    optimizeGraph();
+  }
+
+  /// Pose-graph optimisation over all key-frames: odometry edges (tracking's relative
+  /// motion, refined by local BA), the active loop edges (Cauchy loss), key-frame 0
+  /// fixed. Loops still inconsistent after it (a false loop keeps a large residual) are
+  /// dropped and the graph re-optimized from the same start.
+  void optimizeGraph()
+  {
+    const auto start = Clock::now();
+    const PoseVector poses = map->keyFramePoses();
+    const std::size_t n = poses.size();
+    if (n < 2)
+      return;
+    std::vector<LoopEdge> loops = map->loopEdges();
+    std::vector<std::size_t> dropped;
+    PoseGraph graph;
+    for (int attempt = 0; attempt < 4; ++attempt) {
+      graph = PoseGraph();
+      for (std::size_t id = 0; id < n; ++id)
+        graph.addNode(static_cast<int>(id), poses[id], id == 0);
+      for (std::size_t id = 1; id < n; ++id) {
+        const Pose3d T = map->odometryEdge(static_cast<KeyFrameId>(id));
+        graph.addEdge(static_cast<int>(id - 1), static_cast<int>(id), T,
+                      odometryInformation(T, params.loop_closing), PoseGraphEdgeType::kOdometry);
+      }
+      std::vector<std::size_t> loop_of_edge; // edge index -> loop index
+      for (std::size_t k = 0; k < loops.size(); ++k) {
+        if (!loops[k].active || loops[k].query >= n || loops[k].candidate >= n)
+          continue;
+        loop_of_edge.resize(graph.numEdges() + 1, loops.size());
+        loop_of_edge[graph.addEdge(static_cast<int>(loops[k].candidate),
+                                   static_cast<int>(loops[k].query),
+                                   loops[k].T_candidate_query,
+                                   loopInformation(loops[k].num_inliers, params.loop_closing),
+                                   PoseGraphEdgeType::kLoop)] = k;
+      }
+      PoseGraphOptions options = params.pose_graph;
+      options.gauge_node_id = 0;
+      const PoseGraphSummary summary = optimizePoseGraph(graph, options);
+      if (!summary.success)
+        return; // keep the old poses; the loop edge stays for the next attempt
+      const auto bad = findInconsistentEdges(graph, params.loop_closing.inconsistent_chi2,
+                                             PoseGraphEdgeType::kLoop);
+      if (bad.empty())
+        break;
+      // Drop the worst loop only: one false loop can make true ones look bad too.
+      const std::size_t k = loop_of_edge.at(bad.front().edge_index);
+      loops[k].active = false;
+      map->deactivateLoopEdge(k);
+      dropped.push_back(k);
+    }
+    std::map<KeyFrameId, Pose3d> corrected;
+    for (const auto& [id, node] : graph.nodes())
+      corrected[static_cast<KeyFrameId>(id)] = node.pose();
+
+    if (params.loop_closing.global_bundle_adjustment) {
+      const auto ba_start = Clock::now();
+      BundleAdjustmentParams ba = params.local_mapping.bundle_adjustment;
+      ba.max_iterations = params.loop_closing.global_ba_max_iterations;
+      globalBundleAdjustment(corrected, map->keyFrames(), map->allMapPoints(),
+                             map->loopEdges(), params.loop_closing, ba);
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      global_ba_ms.push_back(msSince(ba_start));
+    }
+    map->applyLoopCorrection(corrected);
+    // The detector searches around the corrected poses from now on.
+    const PoseVector updated = map->keyFramePoses();
+    for (std::size_t id = 0; id < std::min(updated.size(), detector.size()); ++id)
+      detector.updatePose(static_cast<KeyFrameId>(id), updated[id]);
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    pose_graph_ms.push_back(msSince(start));
+    inconsistent += dropped.size();
+    for (std::size_t k : dropped) {
+      const LoopEdge& e = loops[k];
+      for (auto& rec : loop_records)
+        if (rec.verification.accepted && rec.verification.query == e.query &&
+            rec.verification.candidate == e.candidate)
+          rec.dropped_inconsistent = true;
+    }
+  }
+
+  /// Tracking output -> the map, and a new key-frame to the next stage.
+  void handleTracking(const OdometryFrameResult& r, const std::string& path, bool is_skipped,
+                      const std::string& reason)
+  {
+    if (r.keyframe)
+      map->addKeyFrame(r.keyframe);
+    FrameRecord rec;
+    rec.frame_index = r.frame_index;
+    rec.timestamp_s = r.timestamp_s;
+    rec.reference_keyframe = r.reference_keyframe;
+    rec.T_keyframe_lidar = r.T_keyframe_lidar;
+    rec.status = toString(r.status);
+    rec.skipped = is_skipped;
+    rec.skipped_reason = reason;
+    rec.path = path;
+    if (map->numKeyFrames() == 0) {
+      // No key-frame yet (leading skipped frames): keep tracking's own pose.
+      rec.T_keyframe_lidar = r.T_world_lidar;
+      rec.reference_keyframe = 0;
+    }
+    map->addFrame(rec);
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      tracking_ms.push_back(r.timings.total_ms);
+      ++status_counts[rec.status];
+      skipped += is_skipped ? 1 : 0;
+    }
+    if (!r.keyframe)
+      return;
+    if (params.deterministic) {
+      mapKeyFrame(r.keyframe);
+      closeLoops(r.keyframe);
+    }
+    else {
+      mapping_queue.push(r.keyframe);
+    }
+  }
+
+  void finish()
+  {
+    if (!finished) {
+      finished = true;
+      mapping_queue.close();
+      if (mapping_thread.joinable())
+        mapping_thread.join();
+      loop_queue.close();
+      if (loop_thread.joinable())
+        loop_thread.join();
+    }
+    rethrowError();
+  }
+};
+
+RastSlam::RastSlam(const SlamParams& params) : params_(params)
+{
+  std::string why;
+  if (!params_.isValid(&why))
+    throw std::invalid_argument("RastSlam: invalid params: " + why);
+  map_ = std::make_shared<SlamMap>(params_.map_cloud_leaf_m);
+  impl_ = std::make_unique<Impl>(params_, map_);
+}
+
+RastSlam::~RastSlam()
+{
+  try {
+    impl_->finish();
+  } catch (...) {
+    // finish() reports worker errors; a destructor must not throw.
+  }
+}
+
+OdometryFrameResult
+RastSlam::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                  double timestamp_s,
+                  std::size_t frame_index,
+                  const std::string& path)
+{
+  if (impl_->finished)
+    throw std::logic_error("RastSlam::addScan: called after finish()");
+  if (impl_->failed())
+    impl_->finish(); // joins and rethrows the worker's exception
+  OdometryFrameResult r = impl_->odometry.processFrame(cloud, timestamp_s, frame_index);
+  impl_->handleTracking(r, path, false, "");
+  return r;
+}
+
+OdometryFrameResult
+RastSlam::addSkippedScan(std::size_t frame_index,
+                         double timestamp_s,
+                         const std::string& reason,
+                         const std::string& path)
+{
+  if (impl_->finished)
+    throw std::logic_error("RastSlam::addSkippedScan: called after finish()");
+  if (impl_->failed())
+    impl_->finish();
+  OdometryFrameResult r = impl_->odometry.skipFrame(timestamp_s, frame_index, reason);
+  r.keyframe.reset(); // a skipped frame is never a key-frame
+  impl_->handleTracking(r, path, true, reason);
+  return r;
+}
+
+void
+RastSlam::finish()
+{
+  impl_->finish();
+}
+
+PoseVector
+RastSlam::framePoses() const
+{
+  return map_->framePoses();
+}
+std::vector<FrameRecord>
+RastSlam::frames() const
+{
+  return map_->frames();
+}
+PoseVector
+RastSlam::keyFramePoses() const
+{
+  return map_->keyFramePoses();
+}
+std::vector<KeyFrame::Ptr>
+RastSlam::keyFrames() const
+{
+  return map_->keyFrames();
+}
+pcl::PointCloud<pcl::PointXYZI>::Ptr
+RastSlam::buildMap(double leaf_m) const
+{
+  return map_->buildMap(leaf_m);
+}
+std::vector<LoopEdge>
+RastSlam::loops() const
+{
+  return map_->loopEdges();
+}
+std::vector<LoopRecord>
+RastSlam::loopRecords() const
+{
+  std::lock_guard<std::mutex> lock(impl_->stats_mutex);
+  return impl_->loop_records;
+}
+
+SlamStatistics
+RastSlam::statistics() const
+{
+  SlamStatistics s;
+  s.frames = map_->numFrames();
+  s.keyframes = map_->numKeyFrames();
+  s.map_points = map_->numMapPoints();
+  s.map_points_created = map_->numMapPointsCreated();
+  std::lock_guard<std::mutex> lock(impl_->stats_mutex);
+  s.skipped_frames = impl_->skipped;
+  s.loops_accepted = impl_->accepted;
+  s.loops_rejected = impl_->rejected;
+  s.loops_inconsistent = impl_->inconsistent;
+  s.loop_candidates = impl_->candidates;
+  s.pose_graph_runs = impl_->pose_graph_ms.size();
+  s.tracking_status = impl_->status_counts;
+  s.timing["tracking"] = timingOf(impl_->tracking_ms);
+  s.timing["local_mapping"] = timingOf(impl_->mapping_ms);
+  s.timing["loop_detection"] = timingOf(impl_->detection_ms);
+  s.timing["pose_graph"] = timingOf(impl_->pose_graph_ms);
+  s.timing["global_ba"] = timingOf(impl_->global_ba_ms);
+  return s;
+}
+
+} // namespace rast
+} // namespace pcl

@@ -1,0 +1,509 @@
+#include <pcl/slam/slam_map.h>
+
+#include <pcl/io/pcd_io.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <set>
+#include <stdexcept>
+#include <unistd.h>
+#include <unordered_map>
+
+namespace pcl {
+namespace rast {
+
+namespace {
+
+/// Voxel accumulator: insertion-ordered cells, hashed by their integer coordinates.
+class VoxelAccumulator
+{
+public:
+  explicit VoxelAccumulator(double leaf_m) : inv_leaf_(1.0 / leaf_m) {}
+
+  void add(const Eigen::Vector3d& p, float intensity)
+  {
+    const std::int64_t ix = static_cast<std::int64_t>(std::floor(p.x() * inv_leaf_));
+    const std::int64_t iy = static_cast<std::int64_t>(std::floor(p.y() * inv_leaf_));
+    const std::int64_t iz = static_cast<std::int64_t>(std::floor(p.z() * inv_leaf_));
+    // 21 bits per axis: +-1M voxels, i.e. +-100 km at 0.1 m.
+    const std::uint64_t key = (static_cast<std::uint64_t>(ix & 0x1FFFFF) << 42) |
+                              (static_cast<std::uint64_t>(iy & 0x1FFFFF) << 21) |
+                              static_cast<std::uint64_t>(iz & 0x1FFFFF);
+    auto it = index_.find(key);
+    if (it == index_.end()) {
+      it = index_.emplace(key, cells_.size()).first;
+      cells_.push_back(Cell{});
+    }
+    Cell& c = cells_[it->second];
+    c.sum += p;
+    c.intensity += intensity;
+    ++c.count;
+  }
+
+  pcl::PointCloud<pcl::PointXYZI>::Ptr cloud() const
+  {
+    auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    out->reserve(cells_.size());
+    for (const Cell& c : cells_) {
+      pcl::PointXYZI q;
+      const Eigen::Vector3d m = c.sum / static_cast<double>(c.count);
+      q.x = static_cast<float>(m.x());
+      q.y = static_cast<float>(m.y());
+      q.z = static_cast<float>(m.z());
+      q.intensity = static_cast<float>(c.intensity / c.count);
+      out->push_back(q);
+    }
+    out->width = static_cast<std::uint32_t>(out->size());
+    out->height = 1;
+    out->is_dense = true;
+    return out;
+  }
+
+private:
+  struct Cell
+  {
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    double intensity = 0.0;
+    std::size_t count = 0;
+  };
+  double inv_leaf_;
+  std::unordered_map<std::uint64_t, std::size_t> index_;
+  std::vector<Cell> cells_;
+};
+
+} // namespace
+
+pcl::PointCloud<pcl::PointXYZI>::Ptr
+voxelDownsample(const pcl::PointCloud<pcl::PointXYZI>& cloud, double leaf_m)
+{
+  if (!(leaf_m > 0.0) || !std::isfinite(leaf_m))
+    throw std::invalid_argument("voxelDownsample: leaf_m must be > 0, got " +
+                                std::to_string(leaf_m));
+  VoxelAccumulator acc(leaf_m);
+  for (const auto& p : cloud.points)
+    if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z))
+      acc.add(p.getVector3fMap().cast<double>(), p.intensity);
+  return acc.cloud();
+}
+
+void
+savePcdAtomically(const std::string& path, const pcl::PointCloud<pcl::PointXYZI>& cloud)
+{
+  const std::string tmp = path + ".tmp." + std::to_string(::getpid());
+  pcl::PCDWriter writer;
+  int rc = -1;
+  try {
+    if (cloud.empty()) {
+      // PCL refuses to write an empty cloud in binary; an empty ASCII PCD is valid.
+      rc = writer.writeASCII(tmp, cloud);
+    }
+    else {
+      rc = writer.writeBinary(tmp, cloud);
+    }
+  } catch (const std::exception& e) {
+    std::remove(tmp.c_str());
+    throw std::runtime_error(path + ": cannot write PCD: " + e.what());
+  }
+  if (rc != 0) {
+    std::remove(tmp.c_str());
+    throw std::runtime_error(path + ": cannot write PCD");
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    throw std::runtime_error(path + ": cannot rename the temporary PCD into place");
+  }
+}
+
+Pose3d
+SlamMap::addKeyFrame(const KeyFrame::Ptr& kf)
+{
+  if (!kf)
+    throw std::invalid_argument("SlamMap::addKeyFrame: null key-frame");
+  pcl::PointCloud<pcl::PointXYZI>::ConstPtr map_cloud = kf->cloud;
+  if (map_cloud && map_cloud_leaf_m_ > 0.0)
+    map_cloud = voxelDownsample(*map_cloud, map_cloud_leaf_m_);
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (kf->id != keyframes_.size())
+    throw std::invalid_argument("SlamMap::addKeyFrame: expected id " +
+                                std::to_string(keyframes_.size()) + ", got " +
+                                std::to_string(kf->id));
+  KeyFrameEntry entry;
+  entry.kf = kf;
+  entry.T_previous_keyframe = kf->T_previous_keyframe;
+  entry.T_world_keyframe = keyframes_.empty()
+                               ? kf->T_world_keyframe
+                               : keyframes_.back().T_world_keyframe * kf->T_previous_keyframe;
+  entry.map_cloud = map_cloud;
+  keyframes_.push_back(entry);
+  kf->map_point_ids.assign(kf->features.size(), kNoMapPoint);
+  return entry.T_world_keyframe;
+}
+
+void
+SlamMap::addFrame(const FrameRecord& record)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!record.skipped && record.reference_keyframe >= keyframes_.size())
+    throw std::invalid_argument("SlamMap::addFrame: frame " +
+                                std::to_string(record.frame_index) +
+                                " references unknown key-frame " +
+                                std::to_string(record.reference_keyframe));
+  frames_.push_back(record);
+}
+
+std::size_t
+SlamMap::numKeyFrames() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  return keyframes_.size();
+}
+std::size_t
+SlamMap::numFrames() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  return frames_.size();
+}
+std::size_t
+SlamMap::numMapPoints() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  return map_points_.size();
+}
+std::size_t
+SlamMap::numMapPointsCreated() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  return static_cast<std::size_t>(next_map_point_id_);
+}
+
+KeyFrame::Ptr
+SlamMap::keyFrame(KeyFrameId id) const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  return keyframes_.at(id).kf;
+}
+
+Pose3d
+SlamMap::keyFramePose(KeyFrameId id) const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  return keyframes_.at(id).T_world_keyframe;
+}
+
+PoseVector
+SlamMap::keyFramePoses() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  PoseVector out;
+  out.reserve(keyframes_.size());
+  for (const auto& e : keyframes_)
+    out.push_back(e.T_world_keyframe);
+  return out;
+}
+
+std::vector<KeyFrame::Ptr>
+SlamMap::keyFrames() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<KeyFrame::Ptr> out;
+  out.reserve(keyframes_.size());
+  for (const auto& e : keyframes_)
+    out.push_back(e.kf);
+  return out;
+}
+
+Pose3d
+SlamMap::odometryEdge(KeyFrameId id) const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  return keyframes_.at(id).T_previous_keyframe;
+}
+
+void
+SlamMap::setOdometryEdges(const std::map<KeyFrameId, Pose3d>& T_previous_keyframe)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& [id, T] : T_previous_keyframe)
+    if (id < keyframes_.size() && id > 0)
+      keyframes_[id].T_previous_keyframe = T;
+}
+
+void
+SlamMap::applyPosesLocked(const std::map<KeyFrameId, Pose3d>& poses, bool propagate_to_newer)
+{
+  if (poses.empty())
+    return;
+  // Correction of each moved key-frame: T_new * T_old^-1 (world frame), for the points.
+  std::map<KeyFrameId, Pose3d> delta;
+  for (const auto& [id, T_new] : poses) {
+    if (id >= keyframes_.size())
+      continue;
+    delta[id] = T_new * keyframes_[id].T_world_keyframe.inverse();
+    keyframes_[id].T_world_keyframe = T_new;
+  }
+  if (delta.empty())
+    return;
+  if (propagate_to_newer) {
+    const auto& [last_id, last_delta] = *delta.rbegin();
+    for (std::size_t id = last_id + 1; id < keyframes_.size(); ++id) {
+      keyframes_[id].T_world_keyframe = last_delta * keyframes_[id].T_world_keyframe;
+      delta[static_cast<KeyFrameId>(id)] = last_delta;
+    }
+  }
+  for (auto* points : {&map_points_, &archive_})
+    for (auto& [pid, mp] : *points) {
+      const auto it = delta.find(mp.reference_keyframe);
+      if (it != delta.end())
+        mp.p_world = it->second * mp.p_world;
+    }
+}
+
+void
+SlamMap::setKeepCulledMapPoints(bool keep)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  keep_culled_ = keep;
+}
+
+std::vector<MapPoint>
+SlamMap::allMapPoints() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<MapPoint> out;
+  out.reserve(map_points_.size() + archive_.size());
+  for (const auto& [id, mp] : archive_)
+    out.push_back(mp);
+  for (const auto& [id, mp] : map_points_)
+    out.push_back(mp);
+  return out;
+}
+
+void
+SlamMap::applyKeyFramePoses(const std::map<KeyFrameId, Pose3d>& poses, bool propagate_to_newer)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  applyPosesLocked(poses, propagate_to_newer);
+}
+
+std::uint64_t
+SlamMap::correctionEpoch() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  return epoch_;
+}
+
+void
+SlamMap::applyLoopCorrection(const std::map<KeyFrameId, Pose3d>& poses)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  applyPosesLocked(poses, true);
+  ++epoch_;
+}
+
+bool
+SlamMap::applyBundleAdjustment(std::uint64_t epoch,
+                               const std::map<KeyFrameId, Pose3d>& poses,
+                               const std::map<MapPointId, Eigen::Vector3d>& points_world)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (epoch != epoch_)
+    return false;
+  // Points first (absolute optimized positions), then poses: optimized points must not
+  // be moved again by their reference key-frame's correction.
+  std::map<MapPointId, Eigen::Vector3d> kept;
+  for (const auto& [pid, p] : points_world)
+    if (map_points_.count(pid))
+      kept[pid] = p;
+  applyPosesLocked(poses, true);
+  for (const auto& [pid, p] : kept)
+    map_points_[pid].p_world = p;
+  return true;
+}
+
+MapPointId
+SlamMap::createMapPoint(KeyFrameId keyframe,
+                        int feature_index,
+                        const Eigen::Vector3d& p_world,
+                        const OrbDescriptor& descriptor)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  MapPoint mp;
+  mp.id = next_map_point_id_++;
+  mp.p_world = p_world;
+  mp.descriptor = descriptor;
+  mp.reference_keyframe = keyframe;
+  mp.observations.push_back({keyframe, feature_index});
+  if (keyframe < keyframes_.size()) {
+    auto& ids = keyframes_[keyframe].kf->map_point_ids;
+    if (feature_index >= 0 && static_cast<std::size_t>(feature_index) < ids.size())
+      ids[feature_index] = mp.id;
+  }
+  map_points_.emplace(mp.id, std::move(mp));
+  return next_map_point_id_ - 1;
+}
+
+void
+SlamMap::addObservation(MapPointId id, KeyFrameId keyframe, int feature_index)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto it = map_points_.find(id);
+  if (it == map_points_.end())
+    return;
+  it->second.observations.push_back({keyframe, feature_index});
+  if (keyframe < keyframes_.size()) {
+    auto& ids = keyframes_[keyframe].kf->map_point_ids;
+    if (feature_index >= 0 && static_cast<std::size_t>(feature_index) < ids.size())
+      ids[feature_index] = id;
+  }
+}
+
+std::vector<MapPoint>
+SlamMap::mapPoints() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<MapPoint> out;
+  out.reserve(map_points_.size());
+  for (const auto& [id, mp] : map_points_)
+    out.push_back(mp);
+  return out;
+}
+
+std::vector<MapPoint>
+SlamMap::mapPointsSeenBy(const std::vector<KeyFrameId>& keyframes) const
+{
+  const std::set<KeyFrameId> window(keyframes.begin(), keyframes.end());
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<MapPoint> out;
+  for (const auto& [id, mp] : map_points_)
+    for (const auto& obs : mp.observations)
+      if (window.count(obs.keyframe)) {
+        out.push_back(mp);
+        break;
+      }
+  return out;
+}
+
+std::size_t
+SlamMap::cullMapPoints(const std::vector<KeyFrameId>& keyframes)
+{
+  const std::set<KeyFrameId> window(keyframes.begin(), keyframes.end());
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::size_t removed = 0;
+  for (auto it = map_points_.begin(); it != map_points_.end();) {
+    const bool seen = std::any_of(it->second.observations.begin(),
+                                  it->second.observations.end(),
+                                  [&](const MapPointObservation& o) {
+                                    return window.count(o.keyframe) != 0;
+                                  });
+    if (seen) {
+      ++it;
+      continue;
+    }
+    if (keep_culled_)
+      archive_.emplace(it->first, std::move(it->second));
+    it = map_points_.erase(it);
+    ++removed;
+  }
+  return removed;
+}
+
+std::size_t
+SlamMap::cullWeakMapPoints(KeyFrameId before_keyframe, std::size_t min_observations)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::size_t removed = 0;
+  for (auto it = map_points_.begin(); it != map_points_.end();) {
+    KeyFrameId newest = 0;
+    for (const auto& o : it->second.observations)
+      newest = std::max(newest, o.keyframe);
+    if (it->second.observations.size() < min_observations && newest < before_keyframe) {
+      for (const auto& o : it->second.observations) {
+        auto& ids = keyframes_[o.keyframe].kf->map_point_ids;
+        if (static_cast<std::size_t>(o.feature_index) < ids.size())
+          ids[o.feature_index] = kNoMapPoint;
+      }
+      it = map_points_.erase(it);
+      ++removed;
+    }
+    else {
+      ++it;
+    }
+  }
+  return removed;
+}
+
+void
+SlamMap::addLoopEdge(const LoopEdge& edge)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  loop_edges_.push_back(edge);
+}
+
+void
+SlamMap::deactivateLoopEdge(std::size_t index)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  loop_edges_.at(index).active = false;
+}
+
+std::vector<LoopEdge>
+SlamMap::loopEdges() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  return loop_edges_;
+}
+
+std::vector<FrameRecord>
+SlamMap::frames() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  return frames_;
+}
+
+PoseVector
+SlamMap::framePoses() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  PoseVector out;
+  out.reserve(frames_.size());
+  for (const auto& f : frames_) {
+    if (f.reference_keyframe < keyframes_.size())
+      out.push_back(keyframes_[f.reference_keyframe].T_world_keyframe * f.T_keyframe_lidar);
+    else
+      out.push_back(f.T_keyframe_lidar);
+  }
+  return out;
+}
+
+pcl::PointCloud<pcl::PointXYZI>::Ptr
+SlamMap::buildMap(double leaf_m) const
+{
+  std::vector<std::pair<pcl::PointCloud<pcl::PointXYZI>::ConstPtr, Pose3d>> clouds;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (const auto& e : keyframes_)
+      if (e.map_cloud)
+        clouds.emplace_back(e.map_cloud, e.T_world_keyframe);
+  }
+  if (leaf_m > 0.0) {
+    VoxelAccumulator acc(leaf_m);
+    for (const auto& [cloud, T] : clouds)
+      for (const auto& p : cloud->points)
+        acc.add(T * p.getVector3fMap().cast<double>(), p.intensity);
+    return acc.cloud();
+  }
+  auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+  for (const auto& [cloud, T] : clouds)
+    for (const auto& p : cloud->points) {
+      pcl::PointXYZI q = p;
+      q.getVector3fMap() = (T * p.getVector3fMap().cast<double>()).cast<float>();
+      out->push_back(q);
+    }
+  out->width = static_cast<std::uint32_t>(out->size());
+  out->height = 1;
+  return out;
+}
+
+} // namespace rast
+} // namespace pcl

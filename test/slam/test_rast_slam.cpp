@@ -1,0 +1,176 @@
+/// RastSlam end to end on a simulated HDL-64 loop drive made in the test: the loop is
+/// found and closing it improves the ATE; deterministic mode is reproducible; the
+/// threaded mode processes every frame; bad use is reported.
+
+#include <pcl/slam/lidar_simulator.h>
+#include <pcl/slam/rast_slam.h>
+#include <pcl/slam/trajectory_evaluation.h>
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <iostream>
+#include <memory>
+#include <vector>
+
+namespace {
+
+using namespace pcl::rast;
+
+/// One simulated loop drive shared by all tests of this file (simulated once).
+struct LoopSequence
+{
+  std::vector<pcl::PointCloud<pcl::PointXYZI>::ConstPtr> clouds;
+  std::vector<double> times;
+  PoseVector gt;
+};
+
+const LoopSequence&
+loopSequence()
+{
+  static const LoopSequence sequence = [] {
+    PathParams path;
+    path.type = PathType::kLoop;
+    path.num_frames = 200;
+    path.revisit_fraction = 0.25;
+    LidarSimulatorParams params;
+    params.seed = 3;
+    params.num_threads = 2;
+    LidarSimulator sim(params, generatePath(path));
+    LoopSequence s;
+    const Pose3d T0_inv = sim.sensorPose(0).inverse();
+    for (std::size_t i = 0; i < sim.numFrames(); ++i) {
+      auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+      sim.simulateFrame(i, *cloud);
+      s.clouds.push_back(cloud);
+      s.times.push_back(sim.timestamp(i));
+      s.gt.push_back(T0_inv * sim.sensorPose(i));
+    }
+    return s;
+  }();
+  return sequence;
+}
+
+struct RunResult
+{
+  PoseVector poses;
+  SlamStatistics stats;
+  std::vector<LoopEdge> loops;
+  std::size_t map_points = 0;
+  std::vector<std::size_t> kf_frames; ///< frame index of each key-frame
+};
+
+RunResult
+runSlam(const SlamParams& params, std::size_t skip_frame = static_cast<std::size_t>(-1))
+{
+  const LoopSequence& s = loopSequence();
+  RastSlam slam(params);
+  for (std::size_t i = 0; i < s.clouds.size(); ++i) {
+    if (i == skip_frame)
+      slam.addSkippedScan(i, s.times[i], "corrupt scan");
+    else
+      slam.addScan(s.clouds[i], s.times[i], i);
+  }
+  slam.finish();
+  RunResult r;
+  r.poses = slam.framePoses();
+  r.stats = slam.statistics();
+  r.loops = slam.loops();
+  r.map_points = slam.buildMap(0.5)->size();
+  for (const auto& kf : slam.keyFrames())
+    r.kf_frames.push_back(kf->frame_index);
+  return r;
+}
+
+SlamParams
+deterministicParams()
+{
+  SlamParams p;
+  p.deterministic = true;
+  return p;
+}
+
+TEST(RastSlam, ClosesTheLoopAndImprovesTheTrajectory)
+{
+  SlamParams with_loops = deterministicParams();
+  SlamParams without_loops = deterministicParams();
+  without_loops.loop_closing.enable = false;
+  const RunResult closed = runSlam(with_loops);
+  const RunResult open = runSlam(without_loops);
+  const LoopSequence& s = loopSequence();
+  ASSERT_EQ(closed.poses.size(), s.gt.size());
+  ASSERT_EQ(open.poses.size(), s.gt.size());
+  EXPECT_GE(closed.stats.loops_accepted, 1u);
+  EXPECT_EQ(open.stats.loops_accepted, 0u);
+  const double ate_closed = evaluateTrajectory(closed.poses, s.gt).ate_rmse_m;
+  const double ate_open = evaluateTrajectory(open.poses, s.gt).ate_rmse_m;
+  // The simulated odometry is accurate to about a centimetre over this 200 m loop, so
+  // closing the loop cannot improve much here (the long sequences of doc/slam.md show
+  // the gain); it must find the loop and not make the trajectory worse.
+  EXPECT_LT(ate_closed, ate_open + 0.01) << "with loops " << ate_closed << " m, without " << ate_open;
+  EXPECT_LT(ate_closed, 0.1);
+  // Every loop edge agrees with the ground truth: no false loop.
+  for (const LoopEdge& e : closed.loops) {
+    const Pose3d T_gt = s.gt[closed.kf_frames.at(e.candidate)].inverse() *
+                        s.gt[closed.kf_frames.at(e.query)];
+    EXPECT_LT((T_gt.translation() - e.T_candidate_query.translation()).norm(), 0.5)
+        << "loop " << e.candidate << " -> " << e.query;
+  }
+  EXPECT_GT(closed.map_points, 1000u);
+  EXPECT_TRUE(closed.poses.front().isApprox(Pose3d::Identity(), 1e-9));
+}
+
+TEST(RastSlam, DeterministicModeIsReproducible)
+{
+  SlamParams params = deterministicParams();
+  params.local_mapping.enable_bundle_adjustment = true; // exercise every stage
+  const RunResult a = runSlam(params, 17);
+  const RunResult b = runSlam(params, 17);
+  ASSERT_EQ(a.poses.size(), b.poses.size());
+  // Bit-identical across processes (checked with the tool); two runs inside one process
+  // have differed by ~1e-14 m (hidden global state below us), hence the tolerance.
+  double max_diff = 0.0;
+  for (std::size_t i = 0; i < a.poses.size(); ++i)
+    max_diff = std::max(max_diff, (a.poses[i].matrix() - b.poses[i].matrix()).cwiseAbs().maxCoeff());
+  EXPECT_LT(max_diff, 1e-9);
+  std::cout << "max pose difference between the two runs: " << max_diff << "\n";
+  EXPECT_EQ(a.stats.keyframes, b.stats.keyframes);
+  EXPECT_EQ(a.stats.loops_accepted, b.stats.loops_accepted);
+  EXPECT_EQ(a.stats.map_points_created, b.stats.map_points_created);
+  EXPECT_EQ(a.stats.skipped_frames, 1u);
+  EXPECT_EQ(a.map_points, b.map_points);
+}
+
+TEST(RastSlam, ThreadedModeProcessesEveryFrame)
+{
+  SlamParams params;
+  params.deterministic = false;
+  const RunResult r = runSlam(params);
+  const LoopSequence& s = loopSequence();
+  ASSERT_EQ(r.poses.size(), s.gt.size());
+  EXPECT_EQ(r.stats.frames, s.gt.size());
+  EXPECT_GT(r.stats.keyframes, 5u);
+  EXPECT_EQ(r.stats.timing.at("local_mapping").count, r.stats.keyframes);
+  EXPECT_EQ(r.stats.timing.at("loop_detection").count, r.stats.keyframes);
+  EXPECT_LT(evaluateTrajectory(r.poses, s.gt).ate_rmse_m, 2.0);
+}
+
+TEST(RastSlam, ReportsBadUse)
+{
+  SlamParams bad;
+  bad.local_mapping.window_size = 0;
+  EXPECT_THROW(RastSlam{bad}, std::invalid_argument);
+  std::string why;
+  EXPECT_FALSE(bad.isValid(&why));
+  EXPECT_NE(why.find("local_mapping"), std::string::npos);
+  bad = SlamParams();
+  bad.loop_closing.inconsistent_chi2 = -1.0;
+  EXPECT_FALSE(bad.isValid());
+
+  RastSlam slam(deterministicParams());
+  slam.finish();
+  EXPECT_THROW(slam.addScan(loopSequence().clouds[0], 0.0, 0), std::logic_error);
+  slam.finish(); // idempotent
+}
+
+} // namespace

@@ -1,0 +1,165 @@
+/// The pcl_rast_slam command-line contract: output files, line counts, summary keys,
+/// corrupt scans skipped and listed, and clear errors (exit codes) on bad arguments.
+
+#include <pcl/slam/lidar_simulator.h>
+#include <pcl/slam/pose_io.h>
+
+#include <pcl/io/pcd_io.h>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "test_data.h"
+
+#include <filesystem>
+#include <fstream>
+#include <sys/wait.h>
+
+namespace {
+
+namespace fs = std::filesystem;
+
+int
+runTool(const std::string& args, const fs::path& log)
+{
+  const std::string tool = pcl_rast_test::toolPath("pcl_rast_slam");
+  const std::string cmd = "'" + tool + "' " + args + " > '" + log.string() + "' 2>&1";
+  const int status = std::system(cmd.c_str());
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+std::size_t
+countLines(const fs::path& path)
+{
+  std::ifstream in(path);
+  std::size_t n = 0;
+  for (std::string line; std::getline(in, line);)
+    n += !line.empty() && line[0] != '#';
+  return n;
+}
+
+std::string
+readText(const fs::path& path)
+{
+  std::ifstream in(path);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+/// A 40-frame straight HDL-64 drive written once, frame 12 truncated (corrupt).
+const fs::path&
+sequenceDir()
+{
+  static const fs::path dir = [] {
+    const fs::path d = fs::temp_directory_path() / "pcl_rast_test" / "slam_tool_sequence";
+    fs::remove_all(d);
+    pcl::rast::PathParams path;
+    path.type = pcl::rast::PathType::kStraight;
+    path.num_frames = 40;
+    pcl::rast::LidarSimulatorParams params;
+    params.seed = 5;
+    params.num_threads = 2;
+    pcl::rast::LidarSimulator sim(params, pcl::rast::generatePath(path));
+    sim.writeSequence(d.string(), pcl::rast::ScanFormat::kBin, 0, 39);
+    fs::resize_file(d / "velodyne" / "000012.bin", 10); // not a multiple of 16 bytes
+    return d;
+  }();
+  return dir;
+}
+
+class SlamTool : public ::testing::Test
+{
+protected:
+  void SetUp() override
+  {
+    if (!fs::exists(pcl_rast_test::toolPath("pcl_rast_slam")))
+      FAIL() << "pcl_rast_slam is not built";
+    dir_ = pcl_rast_test::makeTempDir("slam_tool");
+    log_ = dir_ / "log.txt";
+  }
+  fs::path dir_, log_;
+};
+
+TEST_F(SlamTool, WritesEveryOutputWithTheContractedContent)
+{
+  const fs::path out = dir_ / "out";
+  const fs::path seq = sequenceDir();
+  const int rc = runTool("-input '" + seq.string() + "' -output '" + out.string() + "' -gt '" +
+                             (seq / "poses.txt").string() + "' -software-render",
+                         log_);
+  ASSERT_EQ(rc, 0) << readText(log_);
+  for (const char* f : {"poses_kitti.txt", "poses_tum.txt", "map.pcd", "render.png", "summary.json"})
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  EXPECT_EQ(countLines(out / "poses_kitti.txt"), 40u);
+  EXPECT_EQ(countLines(out / "poses_tum.txt"), 40u);
+  const pcl::rast::Trajectory kitti = pcl::rast::readTrajectory((out / "poses_kitti.txt").string());
+  EXPECT_TRUE(kitti.poses.front().isApprox(pcl::rast::Pose3d::Identity(), 1e-6));
+  const pcl::rast::Trajectory tum = pcl::rast::readTrajectory((out / "poses_tum.txt").string());
+  EXPECT_NEAR(tum.timestamps_s[1] - tum.timestamps_s[0], 0.1, 1e-6); // from times.txt
+
+  pcl::PointCloud<pcl::PointXYZI> map;
+  ASSERT_EQ(pcl::io::loadPCDFile((out / "map.pcd").string(), map), 0);
+  EXPECT_GT(map.size(), 1000u);
+
+  const auto summary = nlohmann::json::parse(readText(out / "summary.json"));
+  for (const char* key : {"frames", "skipped_frames", "keyframes", "loops_accepted",
+                          "loops_rejected", "timing_ms", "wall_s", "fps", "peak_rss_mb",
+                          "ate_rmse_m", "kitti_t_err_pct", "kitti_r_err_deg_per_100m"})
+    EXPECT_TRUE(summary.contains(key)) << key;
+  EXPECT_EQ(summary["frames"].get<int>(), 40);
+  ASSERT_EQ(summary["skipped_frames"].size(), 1u);
+  EXPECT_EQ(summary["skipped_frames"][0]["frame"].get<int>(), 12);
+  EXPECT_NE(summary["skipped_frames"][0]["path"].get<std::string>().find("000012.bin"),
+            std::string::npos);
+  EXPECT_FALSE(summary["skipped_frames"][0]["reason"].get<std::string>().empty());
+  for (const char* stage : {"tracking", "local_mapping", "loop_detection"})
+    for (const char* stat : {"mean", "median", "max"})
+      EXPECT_TRUE(summary["timing_ms"][stage].contains(stat)) << stage << " " << stat;
+  EXPECT_TRUE(summary["kitti_t_err_pct"].is_null()); // 39 m: no 100 m segment
+  EXPECT_LT(summary["ate_rmse_m"].get<double>(), 1.0);
+  // No temporary files left behind.
+  for (const auto& entry : fs::directory_iterator(out))
+    EXPECT_EQ(entry.path().string().find(".tmp"), std::string::npos) << entry.path();
+}
+
+TEST_F(SlamTool, GroundTruthOfWrongLengthIsAnErrorBeforeAnyWork)
+{
+  const fs::path seq = sequenceDir();
+  const pcl::rast::Trajectory gt = pcl::rast::readTrajectory((seq / "poses.txt").string());
+  pcl::rast::PoseVector shorter(gt.poses.begin(), gt.poses.end() - 3);
+  pcl::rast::writeKittiPoses((dir_ / "short.txt").string(), shorter);
+  const fs::path out = dir_ / "out";
+  EXPECT_EQ(runTool("-input '" + seq.string() + "' -output '" + out.string() + "' -gt '" +
+                        (dir_ / "short.txt").string() + "'",
+                    log_),
+            1);
+  EXPECT_NE(readText(log_).find("37"), std::string::npos) << readText(log_);
+  EXPECT_FALSE(fs::exists(out / "summary.json"));
+}
+
+TEST_F(SlamTool, UnwritableOutputIsAnIoError)
+{
+  std::ofstream(dir_ / "a_file") << "x";
+  const fs::path out = dir_ / "a_file" / "out"; // a folder below a regular file
+  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + out.string() + "'",
+                    log_),
+            2);
+  EXPECT_NE(readText(log_).find("out"), std::string::npos);
+}
+
+TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
+{
+  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + dir_.string() +
+                        "/o' -no-such-flag",
+                    log_),
+            1);
+  EXPECT_NE(readText(log_).find("no-such-flag"), std::string::npos);
+  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "'", log_), 1);
+  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + dir_.string() +
+                        "/o' -stride 0",
+                    log_),
+            1);
+  EXPECT_EQ(runTool("-h", log_), 0);
+  EXPECT_NE(readText(log_).find("-map-leaf"), std::string::npos);
+}
+
+} // namespace

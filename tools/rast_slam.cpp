@@ -1,0 +1,478 @@
+/// \file rast_slam.cpp
+/// \brief pcl_rast_slam: the paper's full SLAM system on a folder of scans.
+///
+///   pcl_rast_slam -input DIR -output DIR [-gt POSES.txt] [options]
+///
+/// Writes into the output folder (each file atomically: temporary file, then rename):
+/// poses_kitti.txt, poses_tum.txt, map.pcd, render.png and summary.json.
+/// Without -input, a loop sequence is simulated into OUTPUT/simulated_input first (and
+/// its ground truth is used for -gt), so the tool runs out of the box.
+/// Ctrl-C stops reading; what was processed so far is finished and written.
+
+#include "cli.h"
+#include "map_render.h"
+
+#include <pcl/slam/lidar_simulator.h>
+#include <pcl/slam/pose_io.h>
+#include <pcl/slam/rast_slam.h>
+#include <pcl/slam/sequence_reader.h>
+#include <pcl/slam/slam_map.h>
+#include <pcl/slam/trajectory_evaluation.h>
+
+#include <nlohmann/json.hpp>
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <csignal>
+#include <cstdio>
+#include <deque>
+#include <filesystem>
+#include <iostream>
+#include <mutex>
+#include <optional>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <sys/resource.h>
+#include <thread>
+#include <unistd.h>
+
+namespace {
+
+namespace rast = pcl::rast;
+namespace fs = std::filesystem;
+using nlohmann::json;
+using pcl_rast_tools::ArgParser;
+
+std::atomic<bool> g_interrupted{false};
+
+extern "C" void
+onSigint(int)
+{
+  g_interrupted.store(true); // only an atomic flag: async-signal-safe
+}
+
+double
+peakRssMb()
+{
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return usage.ru_maxrss / 1024.0; // Linux: kilobytes
+}
+
+/// One scan read ahead by the reader thread, or the reason it could not be read.
+struct ReadItem
+{
+  rast::ScanFrame frame;
+  bool ok = false;
+  std::string error;
+  std::string path;
+  double timestamp_s = 0.0;
+  std::size_t sequence_index = 0;
+};
+
+/// Reads scans on a thread of its own, a few frames ahead of tracking (bounded queue,
+/// condition variables). Stops early when interrupted.
+class Prefetcher
+{
+public:
+  Prefetcher(rast::SequenceReader& reader, std::size_t depth)
+    : reader_(reader), depth_(depth), thread_([this] { run(); })
+  {}
+  ~Prefetcher()
+  {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stop_ = true;
+    }
+    cv_.notify_all();
+    thread_.join();
+  }
+  /// \return false at the end of the sequence (or after an interrupt).
+  bool next(ReadItem& item)
+  {
+    std::unique_lock<std::mutex> lock(mutex_);
+    cv_.wait(lock, [&] { return done_ || !items_.empty(); });
+    if (items_.empty())
+      return false;
+    item = std::move(items_.front());
+    items_.pop_front();
+    cv_.notify_all();
+    return true;
+  }
+
+private:
+  void run()
+  {
+    for (std::size_t i = 0; i < reader_.size(); ++i) {
+      if (g_interrupted.load())
+        break;
+      ReadItem item;
+      item.sequence_index = i;
+      item.path = reader_.path(i);
+      item.timestamp_s = reader_.timestamp(i);
+      try {
+        item.frame = reader_.read(i);
+        item.ok = true;
+      } catch (const rast::ScanReadError& e) {
+        item.error = e.what();
+      } catch (const std::exception& e) {
+        item.error = e.what();
+      }
+      std::unique_lock<std::mutex> lock(mutex_);
+      cv_.wait(lock, [&] { return stop_ || items_.size() < depth_; });
+      if (stop_)
+        break;
+      items_.push_back(std::move(item));
+      cv_.notify_all();
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    done_ = true;
+    cv_.notify_all();
+  }
+
+  rast::SequenceReader& reader_;
+  std::size_t depth_;
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  std::deque<ReadItem> items_;
+  bool done_ = false, stop_ = false;
+  std::thread thread_;
+};
+
+json
+timingJson(const rast::StageTiming& t)
+{
+  return {{"mean", t.mean_ms}, {"median", t.median_ms}, {"max", t.max_ms},
+          {"count", t.count}, {"total", t.total_ms}};
+}
+
+json
+poseJson(const rast::Pose3d& T)
+{
+  json m = json::array();
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c)
+      m.push_back(T.matrix()(r, c));
+  return m;
+}
+
+/// Checks the output folder can be written, before any work.
+void
+checkWritableFolder(const std::string& dir)
+{
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (!fs::is_directory(dir))
+    throw std::runtime_error("cannot create output folder " + dir +
+                             (ec ? ": " + ec.message() : ""));
+  const std::string probe = (fs::path(dir) / (".pcl_rast_slam_write_test." +
+                                               std::to_string(::getpid())))
+                                .string();
+  std::FILE* f = std::fopen(probe.c_str(), "wb");
+  if (!f)
+    throw std::runtime_error("output folder " + dir + " is not writable");
+  const bool ok = std::fputs("ok\n", f) >= 0;
+  const bool closed = std::fclose(f) == 0;
+  std::remove(probe.c_str());
+  if (!ok || !closed)
+    throw std::runtime_error("output folder " + dir + " is not writable");
+}
+
+/// Simulates the default demo sequence: a 220-frame HDL-64 loop drive.
+std::string
+simulateDefaultInput(const std::string& output)
+{
+  const std::string dir = (fs::path(output) / "simulated_input").string();
+  rast::PathParams path;
+  path.type = rast::PathType::kLoop;
+  path.num_frames = 220;
+  rast::LidarSimulatorParams sim_params;
+  sim_params.seed = 7;
+  sim_params.num_threads = 2;
+  rast::LidarSimulator sim(sim_params, rast::generatePath(path));
+  pcl_rast_tools::ProgressBar bar("Simulating loop (no -input)", sim.numFrames());
+  sim.writeSequence(dir, rast::ScanFormat::kBin, 0, sim.numFrames() - 1, 1,
+                    [&](std::size_t done, std::size_t) { bar.update(done); });
+  bar.finish();
+  return dir;
+}
+
+int
+run(int argc, char** argv)
+{
+  const rast::SlamParams defaults;
+  std::string input, output, gt_path, threads = defaults.deterministic ? "off" : "on";
+  int first = 0, last = -1, stride = 1;
+  bool no_loop = !defaults.loop_closing.enable;
+  bool no_ba = !defaults.local_mapping.enable_bundle_adjustment;
+  bool ba = false;
+  bool global_ba = defaults.loop_closing.global_bundle_adjustment;
+  double map_leaf_m = 0.2;
+  bool software_render = false, quiet = false;
+
+  ArgParser parser("pcl_rast_slam",
+                   "LiDAR SLAM on rasterized ORB features (tracking, local mapping with "
+                   "bundle adjustment, loop closing with a pose graph) on a folder of "
+                   ".bin/.pcd/.ply scans (a velodyne/ or pcd/ subfolder is found). Writes "
+                   "poses_kitti.txt, poses_tum.txt, map.pcd, render.png and summary.json "
+                   "into the output folder. Without -input, a loop sequence is simulated "
+                   "first (OUTPUT/simulated_input) and evaluated against its ground truth.");
+  parser.addString("input", "scan folder (default: simulate a loop sequence)", &input);
+  parser.addString("output", "output folder (created when missing)", &output, true);
+  parser.addString("gt", "ground-truth poses (KITTI or TUM, LiDAR frame), one per scan "
+                         "of the folder or per selected frame",
+                   &gt_path);
+  parser.addInt("first", "first scan index", &first);
+  parser.addInt("last", "last scan index, inclusive (-1: the last)", &last);
+  parser.addInt("stride", "use every stride-th scan", &stride);
+  parser.addChoice("threads", "on: three threads; off: deterministic, one thread", &threads,
+                   {"on", "off"});
+  parser.addSwitch("no-loop", "disable loop closure", &no_loop);
+  parser.addSwitch("no-ba", "disable local bundle adjustment (the default)", &no_ba);
+  parser.addSwitch("ba", "enable local bundle adjustment", &ba);
+  parser.addSwitch("global-ba",
+                   "global bundle adjustment after each pose-graph optimisation "
+                   "(comparison, slow)",
+                   &global_ba);
+  parser.addDouble("map-leaf", "voxel size of map.pcd [m]", &map_leaf_m);
+  parser.addSwitch("software-render", "render.png with OpenCV instead of VTK (faster)",
+                   &software_render);
+  parser.addSwitch("quiet", "no progress bar", &quiet);
+  if (!parser.parse(argc, argv))
+    return pcl_rast_tools::kExitOk;
+
+  // ---- validate everything before any work ----
+  if (first < 0 || stride < 1 || last < -1 || (last >= 0 && last < first))
+    throw std::invalid_argument("bad frame range: -first " + std::to_string(first) +
+                                " -last " + std::to_string(last) + " -stride " +
+                                std::to_string(stride));
+  if (!(map_leaf_m > 0.0))
+    throw std::invalid_argument("-map-leaf must be > 0, got " + std::to_string(map_leaf_m));
+  if (ba && parser.given("no-ba"))
+    throw std::invalid_argument("-ba and -no-ba contradict each other");
+  rast::SlamParams params = defaults;
+  params.deterministic = threads == "off";
+  params.loop_closing.enable = !no_loop;
+  if (ba)
+    params.local_mapping.enable_bundle_adjustment = true;
+  if (no_ba && parser.given("no-ba"))
+    params.local_mapping.enable_bundle_adjustment = false;
+  params.loop_closing.global_bundle_adjustment = global_ba;
+  std::string why;
+  if (!params.isValid(&why))
+    throw std::invalid_argument("invalid parameters: " + why);
+
+  checkWritableFolder(output); // I/O error (exit 2) before any work
+  if (input.empty()) {
+    if (!gt_path.empty())
+      throw std::invalid_argument("-gt needs -input");
+    input = simulateDefaultInput(output);
+    gt_path = (fs::path(input) / "poses.txt").string();
+  }
+
+  rast::SequenceReaderOptions options;
+  options.first = static_cast<std::size_t>(first);
+  options.last = last;
+  options.stride = static_cast<std::size_t>(stride);
+  rast::SequenceReader reader(input, options);
+  std::cerr << "Input " << reader.scanFolder() << " [" << reader.numFiles() << " scans, "
+            << reader.size() << " selected"
+            << (reader.timesPath().empty() ? "" : ", times from " + reader.timesPath())
+            << "]\n";
+
+  // Ground truth, one pose per selected frame, re-based on the first.
+  rast::PoseVector gt;
+  if (!gt_path.empty()) {
+    const rast::Trajectory trajectory = rast::readTrajectory(gt_path);
+    const std::size_t n = trajectory.poses.size();
+    if (n == reader.numFiles()) {
+      for (std::size_t i = 0; i < reader.size(); ++i)
+        gt.push_back(trajectory.poses.at(first + i * stride));
+    }
+    else if (n == reader.size()) {
+      gt = trajectory.poses;
+    }
+    else {
+      throw std::invalid_argument("-gt " + gt_path + " has " + std::to_string(n) +
+                                  " poses, but the sequence has " +
+                                  std::to_string(reader.numFiles()) + " scans (" +
+                                  std::to_string(reader.size()) + " selected)");
+    }
+    const rast::Pose3d T_first_inv = gt.front().inverse();
+    for (auto& T : gt)
+      T = T_first_inv * T;
+  }
+
+  // ---- run ----
+  std::signal(SIGINT, onSigint);
+  const auto wall_start = std::chrono::steady_clock::now();
+  rast::RastSlam slam(params);
+  json skipped = json::array();
+  std::size_t processed = 0;
+  {
+    Prefetcher prefetcher(reader, 4);
+    std::optional<pcl_rast_tools::ProgressBar> bar;
+    if (!quiet)
+      bar.emplace("pcl_rast_slam", reader.size());
+    ReadItem item;
+    while (!g_interrupted.load() && prefetcher.next(item)) {
+      if (item.ok) {
+        if (item.frame.cloud->empty()) {
+          slam.addSkippedScan(item.sequence_index, item.timestamp_s, "empty scan", item.path);
+          skipped.push_back({{"frame", item.sequence_index}, {"path", item.path},
+                             {"reason", "empty scan"}});
+        }
+        else {
+          slam.addScan(item.frame.cloud, item.timestamp_s, item.sequence_index, item.path);
+        }
+      }
+      else {
+        slam.addSkippedScan(item.sequence_index, item.timestamp_s, item.error, item.path);
+        skipped.push_back(
+            {{"frame", item.sequence_index}, {"path", item.path}, {"reason", item.error}});
+      }
+      ++processed;
+      if (bar)
+        bar->update(processed);
+    }
+    if (bar)
+      bar->finish();
+  }
+  const bool interrupted = g_interrupted.load();
+  if (interrupted)
+    std::cerr << "pcl_rast_slam: interrupted after " << processed
+              << " frames; finishing and writing the results so far\n";
+  slam.finish();
+  const double wall_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+
+  // ---- outputs (each atomic) ----
+  rast::PoseVector poses = slam.framePoses();
+  if (!poses.empty()) {
+    const rast::Pose3d T_first_inv = poses.front().inverse();
+    for (auto& T : poses)
+      T = T_first_inv * T;
+  }
+  std::vector<double> times;
+  for (const auto& f : slam.frames())
+    times.push_back(f.timestamp_s);
+  const fs::path out(output);
+  rast::writeKittiPoses((out / "poses_kitti.txt").string(), poses);
+  rast::writeTumPoses((out / "poses_tum.txt").string(), poses, times);
+
+  const auto map = slam.buildMap(map_leaf_m);
+  rast::savePcdAtomically((out / "map.pcd").string(), *map);
+
+  const rast::PoseVector kf_poses = slam.keyFramePoses();
+  const auto keyframes = slam.keyFrames();
+  pcl_rast_tools::MapRenderInput render_input;
+  render_input.map = map.get();
+  for (const auto& T : slam.framePoses())
+    render_input.trajectory.push_back(T.translation());
+  for (std::size_t i = 0; i < std::min(gt.size(), poses.size()); ++i)
+    render_input.ground_truth.push_back(gt[i].translation());
+  json loop_json = json::array();
+  for (const auto& e : slam.loops()) {
+    if (e.active)
+      render_input.loop_edges.emplace_back(kf_poses.at(e.candidate).translation(),
+                                           kf_poses.at(e.query).translation());
+    loop_json.push_back({{"query_keyframe", e.query},
+                         {"candidate_keyframe", e.candidate},
+                         {"query_frame", keyframes.at(e.query)->frame_index},
+                         {"candidate_frame", keyframes.at(e.candidate)->frame_index},
+                         {"inliers", e.num_inliers},
+                         {"active", e.active},
+                         {"T_candidate_query", poseJson(e.T_candidate_query)}});
+  }
+  fs::path sequence_name = fs::path(reader.scanFolder()).filename();
+  if (sequence_name == "velodyne" || sequence_name == "pcd" || sequence_name == "ply")
+    sequence_name = fs::path(reader.scanFolder()).parent_path().filename();
+  render_input.title = "pcl_rast_slam: " + sequence_name.string();
+  pcl_rast_tools::MapRenderParams render_params;
+  render_params.force_software_fallback = software_render;
+  const auto render = pcl_rast_tools::renderMapTopDown(render_input, render_params,
+                                                       (out / "render.png").string());
+  if (!render.success)
+    std::cerr << "pcl_rast_slam: warning: render.png not written: " << render.message << "\n";
+
+  const rast::SlamStatistics stats = slam.statistics();
+  json summary;
+  summary["input"] = reader.scanFolder();
+  summary["frames"] = stats.frames;
+  summary["frames_selected"] = reader.size();
+  summary["interrupted"] = interrupted;
+  summary["skipped_frames"] = skipped;
+  summary["keyframes"] = stats.keyframes;
+  summary["map_points"] = stats.map_points;
+  summary["map_points_created"] = stats.map_points_created;
+  summary["map_pcd_points"] = map->size();
+  summary["loops_accepted"] = stats.loops_accepted;
+  summary["loops_rejected"] = stats.loops_rejected;
+  summary["loops_dropped_inconsistent"] = stats.loops_inconsistent;
+  summary["loop_candidates"] = stats.loop_candidates;
+  summary["pose_graph_runs"] = stats.pose_graph_runs;
+  summary["loop_edges"] = loop_json;
+  summary["tracking_status"] = stats.tracking_status;
+  json timing;
+  for (const auto& [stage, t] : stats.timing)
+    timing[stage] = timingJson(t);
+  summary["timing_ms"] = timing;
+  summary["wall_s"] = wall_s;
+  summary["fps"] = wall_s > 0.0 ? stats.frames / wall_s : 0.0;
+  summary["peak_rss_mb"] = peakRssMb();
+  summary["render_backend"] = render.backend;
+  summary["render_message"] = render.message;
+  summary["params"] = {{"threads", threads},
+                       {"loop_closure", params.loop_closing.enable},
+                       {"local_ba", params.local_mapping.enable_bundle_adjustment},
+                       {"global_ba", params.loop_closing.global_bundle_adjustment},
+                       {"map_leaf_m", map_leaf_m},
+                       {"first", first},
+                       {"last", last},
+                       {"stride", stride},
+                       {"ba_window", params.local_mapping.window_size}};
+  if (!gt.empty()) {
+    const std::size_t n = std::min(gt.size(), poses.size());
+    summary["gt"] = gt_path;
+    if (n >= 2) {
+      const rast::PoseVector gt_n(gt.begin(), gt.begin() + n);
+      const rast::PoseVector est_n(poses.begin(), poses.begin() + n);
+      const rast::EvaluationResult ev = rast::evaluateTrajectory(est_n, gt_n);
+      summary["ate_rmse_m"] = ev.ate_rmse_m;
+      summary["ate_max_m"] = ev.ate_max_m;
+      summary["kitti_t_err_pct"] =
+          ev.kitti_t_err_pct ? json(*ev.kitti_t_err_pct) : json(nullptr);
+      summary["kitti_r_err_deg_per_100m"] =
+          ev.kitti_r_err_deg_per_100m ? json(*ev.kitti_r_err_deg_per_100m) : json(nullptr);
+      summary["rpe_trans_rmse_m"] = ev.rpe_trans_rmse_m;
+      summary["gt_length_m"] = ev.gt_length_m;
+    }
+    else {
+      summary["ate_rmse_m"] = nullptr;
+      summary["kitti_t_err_pct"] = nullptr;
+      summary["kitti_r_err_deg_per_100m"] = nullptr;
+    }
+  }
+  rast::writeFileAtomically((out / "summary.json").string(), summary.dump(2) + "\n");
+
+  std::cerr << "Wrote " << (out / "poses_kitti.txt").string() << ", poses_tum.txt, map.pcd ("
+            << map->size() << " points), render.png (" << render.backend
+            << "), summary.json\n";
+  std::cerr << stats.frames << " frames, " << stats.keyframes << " key-frames, "
+            << stats.loops_accepted << " loops accepted, " << wall_s << " s ("
+            << (wall_s > 0 ? stats.frames / wall_s : 0.0) << " fps)";
+  if (summary.contains("ate_rmse_m") && !summary["ate_rmse_m"].is_null())
+    std::cerr << ", ATE RMSE " << summary["ate_rmse_m"].get<double>() << " m";
+  std::cerr << "\n";
+  return pcl_rast_tools::kExitOk;
+}
+
+} // namespace
+
+int
+main(int argc, char** argv)
+{
+  return pcl_rast_tools::runTool("pcl_rast_slam", [&] { return run(argc, argv); });
+}
