@@ -1,8 +1,10 @@
 #include <pcl/features/range_raster_image.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
+#include <vector>
 
 namespace pcl {
 namespace rast {
@@ -153,45 +155,70 @@ RangeRasterImage::compute()
   if (!input_)
     throw std::invalid_argument("RangeRasterImage::compute: no input cloud (call setInputCloud)");
   const int w = width(), h = height();
+  const std::size_t num_pixels = static_cast<std::size_t>(w) * static_cast<std::size_t>(h);
   prepareImage(height_image_, h, w, CV_32FC1);
   prepareImage(index_image_, h, w, CV_32SC1);
   prepareImage(gray_image_, h, w, CV_8UC1);
-  index_image_.setTo(cv::Scalar(-1));
   auto* heights = height_image_.ptr<float>();
   auto* indices = index_image_.ptr<int>();
-
-  // One pass over the points: keep the highest point of every pixel.
-  num_projected_ = 0;
-  const PointCloud& cloud = *input_;
-  Eigen::Vector2f uv;
-  for (std::size_t i = 0; i < cloud.size(); ++i) {
-    const Eigen::Vector3f p = cloud[i].getVector3fMap();
-    if (!projectToRaster(params_, p, uv))
-      continue;
-    const int col = toPixel(uv.x()), row = toPixel(uv.y());
-    if (col < 0 || row < 0 || col >= w || row >= h)
-      continue;
-    ++num_projected_;
-    const int k = row * w + col;
-    if (indices[k] < 0 || p.z() > heights[k]) {
-      indices[k] = static_cast<int>(i);
-      heights[k] = p.z();
-    }
-  }
-
-  // Gray image and NaN for empty pixels.
-  num_occupied_ = 0;
   auto* gray = gray_image_.ptr<std::uint8_t>();
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  for (int k = 0; k < w * h; ++k) {
+  std::fill(indices, indices + num_pixels, -1);
+  std::fill(heights, heights + num_pixels, nan);
+  std::fill(gray, gray + num_pixels, std::uint8_t(0));
+
+  // One pass over the points: keep the highest point of every pixel. The occupied
+  // pixels are listed on the way, so the gray values touch only those.
+  num_projected_ = 0;
+  std::vector<int> occupied;
+  occupied.reserve(4096);
+  const PointCloud& cloud = *input_;
+  const float fw = static_cast<float>(w), fh = static_cast<float>(h);
+  auto keep = [&](std::size_t i, float u, float v, float z) {
+    // toPixel(u) = floor(u + 0.5); for a shifted value in [0, size) floor is the
+    // truncation, and the range test also rejects NaN.
+    const float cu = u + 0.5f, cv = v + 0.5f;
+    if (!(cu >= 0.0f && cu < fw && cv >= 0.0f && cv < fh))
+      return;
+    const int col = static_cast<int>(cu), row = static_cast<int>(cv);
+    ++num_projected_;
+    const int k = row * w + col;
     if (indices[k] < 0) {
-      gray[k] = 0;
-      heights[k] = nan;
-      continue;
+      occupied.push_back(k);
+      indices[k] = static_cast<int>(i);
+      heights[k] = z;
     }
-    ++num_occupied_;
-    gray[k] = heightToGray(params_, heights[k]);
+    else if (z > heights[k]) {
+      indices[k] = static_cast<int>(i);
+      heights[k] = z;
+    }
+  };
+  if (params_.projection == RasterProjection::kOrthographic) {
+    // projectToRaster's bird's-eye view, with the parameters hoisted out of the loop.
+    const double half_extent = params_.orthographic.half_extent_m;
+    const double resolution = params_.orthographic.resolution_m;
+    for (std::size_t i = 0; i < cloud.size(); ++i) {
+      const auto& p = cloud[i];
+      if (!(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)))
+        continue;
+      const float u = static_cast<float>((half_extent - p.y) / resolution - 0.5);
+      const float v = static_cast<float>((half_extent - p.x) / resolution - 0.5);
+      keep(i, u, v, p.z);
+    }
   }
+  else {
+    Eigen::Vector2f uv;
+    for (std::size_t i = 0; i < cloud.size(); ++i) {
+      const Eigen::Vector3f p = cloud[i].getVector3fMap();
+      if (projectToRaster(params_, p, uv))
+        keep(i, uv.x(), uv.y(), p.z());
+    }
+  }
+
+  // Gray values of the occupied pixels (empty ones stay 0 with a NaN height).
+  num_occupied_ = occupied.size();
+  for (const int k : occupied)
+    gray[k] = heightToGray(params_, heights[k]);
   computed_ = true;
 }
 

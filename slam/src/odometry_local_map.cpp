@@ -79,9 +79,18 @@ voxelDownsampleIndices(const pcl::PointCloud<pcl::PointXYZI>& cloud,
     return static_cast<std::int64_t>(v * inv + kBias) - static_cast<std::int64_t>(kBias);
   };
   out.reserve(n / 8);
+  // Consecutive scan points often share a voxel: skip the probe for a repeated key
+  // (already in the table). 0 is never a key, so the first point always probes.
+  std::uint64_t last_key = 0;
   for (std::size_t i = 0; i < n; ++i) {
     const auto& p = cloud.points[i];
-    if (!filter(p) || !insert(packKey(cell(p.x), cell(p.y), cell(p.z))))
+    if (!filter(p))
+      continue;
+    const std::uint64_t k = packKey(cell(p.x), cell(p.y), cell(p.z));
+    if (k == last_key)
+      continue;
+    last_key = k;
+    if (!insert(k))
       continue;
     out.push_back(static_cast<int>(i));
     if (2 * out.size() > table.size()) { // grow and rehash
