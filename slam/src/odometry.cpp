@@ -14,6 +14,7 @@
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
+#include <vector>
 
 namespace pcl {
 namespace rast {
@@ -83,6 +84,64 @@ constexpr int kReanchorAfterFrames = 3;
 /// fraction of the source points pairs with map planes (well-tracked frames: 0.8-0.95).
 constexpr double kMinFallbackPairedRatio = 0.6;
 
+/// Starts for the dense search when the features fail: the prior, the weak feature
+/// estimates, and the prior's motion from \a T_world_last turned by +-k * yaw_step_deg
+/// (up to max_yaw_deg) about the LiDAR z axis, its translation turned by half that
+/// (a car's arc; negligible for slow handheld motion). Nearest-to-prior first.
+std::vector<Pose3d>
+motionHypotheses(const Pose3d& T_world_prior,
+                 const Pose3d& T_world_last,
+                 const std::vector<Pose3d>& weak_estimates,
+                 const MotionHypothesisParams& params)
+{
+  std::vector<Pose3d> starts{T_world_prior};
+  if (!params.enabled)
+    return starts;
+  starts.insert(starts.end(), weak_estimates.begin(), weak_estimates.end());
+  const Pose3d delta = T_world_last.inverse() * T_world_prior;
+  const int steps = static_cast<int>(std::floor(params.max_yaw_deg / params.yaw_step_deg + 1e-9));
+  for (int k = 1; k <= steps; ++k)
+    for (const int sign : {1, -1}) {
+      const double yaw = sign * k * params.yaw_step_deg * M_PI / 180.0;
+      Pose3d turned = Pose3d::Identity();
+      turned.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()) * delta.linear();
+      turned.translation() =
+          Eigen::AngleAxisd(yaw / 2.0, Eigen::Vector3d::UnitZ()) * delta.translation();
+      starts.push_back(T_world_last * turned);
+    }
+  return starts;
+}
+
+/// Dense ICP from every start with a wider basin (coarse), then the standard refinement
+/// from the coarse result that paired the most points (ties: lower RMS residual).
+DenseResult
+bestDenseFromHypotheses(const Points3f& source,
+                        const VoxelPlaneMap& map,
+                        const std::vector<Pose3d>& starts,
+                        const DenseTrackingParams& dense,
+                        const MotionHypothesisParams& params)
+{
+  DenseTrackingParams coarse = dense;
+  coarse.max_correspondence_distance_m = std::max(dense.max_correspondence_distance_m,
+                                                  params.coarse_correspondence_distance_m);
+  coarse.max_correction_m = std::max(dense.max_correction_m, params.coarse_max_correction_m);
+  coarse.max_correction_deg = std::max(dense.max_correction_deg, params.yaw_step_deg);
+  DenseResult best;
+  for (const Pose3d& start : starts) {
+    const DenseResult r = registerToMap(source, map, start, coarse);
+    if (!r.success || r.degenerate_directions > 0)
+      continue;
+    if (!best.success || r.num_correspondences > best.num_correspondences ||
+        (r.num_correspondences == best.num_correspondences && r.rmse_m < best.rmse_m))
+      best = r;
+  }
+  if (!best.success) {
+    best.message = "no motion hypothesis converged";
+    return best;
+  }
+  return registerToMap(source, map, best.T_world_lidar, dense);
+}
+
 } // namespace
 
 bool
@@ -121,6 +180,24 @@ DenseTrackingParams::isValid(std::string* why) const
 }
 
 bool
+MotionHypothesisParams::isValid(std::string* why) const
+{
+  std::string reason;
+  if (!(max_yaw_deg >= 0.0 && max_yaw_deg <= 180.0))
+    reason = "max_yaw_deg must be in [0, 180]";
+  else if (!finitePositive(yaw_step_deg))
+    reason = "yaw_step_deg must be > 0";
+  else if (min_weak_inliers < 3)
+    reason = "min_weak_inliers must be >= 3";
+  else if (!finitePositive(coarse_correspondence_distance_m) ||
+           !finitePositive(coarse_max_correction_m))
+    reason = "coarse_correspondence_distance_m and coarse_max_correction_m must be > 0";
+  if (why)
+    *why = reason;
+  return reason.empty();
+}
+
+bool
 OdometryParams::isValid(std::string* why) const
 {
   std::string reason, sub;
@@ -134,6 +211,8 @@ OdometryParams::isValid(std::string* why) const
     reason = "registration." + sub;
   else if (!dense.isValid(&sub))
     reason = "dense." + sub;
+  else if (!turn_search.isValid(&sub))
+    reason = "turn_search." + sub;
   else if (keyframe_min_frames < 1)
     reason = "keyframe_min_frames must be >= 1, got " + std::to_string(keyframe_min_frames);
   else if (keyframe_max_common_points < 0)
@@ -375,6 +454,14 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   result.num_inliers = ransac.success ? static_cast<int>(ransac.inlier_indices.size()) : 0;
   bool features_ok = ransac.success && result.num_inliers >= params.min_feature_inliers;
   Pose3d T_world_features = T_world_keyframe * ransac.T_target_source;
+  // Estimates too weak for the consistency check are still hypotheses for the dense
+  // search below (under large motion they are often right, with 5-14 inliers).
+  std::vector<Pose3d> weak_estimates;
+  auto keepWeak = [&](const RigidRansacResult& r, const Pose3d& T_world_reference) {
+    if (static_cast<int>(r.inlier_indices.size()) >= params.turn_search.min_weak_inliers)
+      weak_estimates.push_back(T_world_reference * r.T_target_source);
+  };
+  keepWeak(ransac, T_world_keyframe);
   std::string reference = "the key-frame";
   if (!features_ok && last_features && last_features->size() >= 3 && features->size() >= 3) {
     // Too far from the key-frame: the previous frame is closer.
@@ -384,6 +471,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     if (matches.size() >= 3) {
       const RigidRansacResult last = estimateRigidRansac(
           features->points, last_features->points, matches, params.registration.ransac);
+      keepWeak(last, T_world_last_features);
       if (last.success && static_cast<int>(last.inlier_indices.size()) >= params.min_feature_inliers) {
         features_ok = true;
         T_world_features = T_world_last_features * last.T_target_source;
@@ -443,13 +531,19 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
       }
     }
   } else {
-    const DenseResult dense = registerToMap(source, map, T_world_prior, params.dense);
+    // Feature-consistency check failed. Large motion (a sharp turn at a low frame rate)
+    // makes the constant-velocity prior wrong, so dense ICP is started from several
+    // hypotheses: the prior, the weak feature estimates, and the prior turned by
+    // +-yaw steps; the best-paired result wins.
+    const std::vector<Pose3d> starts =
+        motionHypotheses(T_world_prior, T_world_last, weak_estimates, params.turn_search);
+    const DenseResult dense = bestDenseFromHypotheses(source, map, starts, params.dense, params.turn_search);
     keepDense(dense);
     result.degraded = true;
     const std::string why = "feature-consistency check failed (" +
                             std::to_string(result.num_inliers) + " inliers < " +
                             std::to_string(params.min_feature_inliers) + ")";
-    // Dense ICP alone from a wrong prior can settle on the ground plane with the wrong
+    // Dense ICP alone from a wrong start can settle on the ground plane with the wrong
     // yaw; accept it only when most of the scan pairs with the map.
     const bool well_paired = dense.num_correspondences >=
                              kMinFallbackPairedRatio * std::max(1, dense.num_source_points);
@@ -457,13 +551,15 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
       result.status = TrackingStatus::kDenseFallback;
       result.T_world_lidar = dense.T_world_lidar;
       result.refined = true;
-      result.message = why + ": dense ICP from the prior; " + dense.message;
+      result.message = why + ": dense ICP from " + std::to_string(starts.size()) +
+                       " motion hypotheses; " + dense.message;
     } else {
       // The prior, corrected only along the directions the scan constrains (e.g. the
       // ground's height, roll and pitch on an open field).
+      const DenseResult from_prior = registerToMap(source, map, T_world_prior, params.dense);
       result.status = TrackingStatus::kConstantVelocity;
-      if (dense.success)
-        result.T_world_lidar = dense.T_world_lidar;
+      if (from_prior.success)
+        result.T_world_lidar = from_prior.T_world_lidar;
       result.message = why + ": constant-velocity prediction (" + dense.message + ")";
     }
   }

@@ -128,6 +128,31 @@ struct DenseTrackingParams
   isValid(std::string* why = nullptr) const;
 };
 
+/// \brief Recovery from large motion (a sharp turn at a low frame rate) when the
+/// feature-consistency check fails: dense ICP is started from several motion
+/// hypotheses instead of the constant-velocity prior alone, and the start whose result
+/// pairs the most scan points with the local map wins (doc/odometry.md).
+struct MotionHypothesisParams
+{
+  /// Off: dense ICP from the prior only (the paper's fallback).
+  bool enabled = true;
+  /// The prior's rotation is turned by +-k * yaw_step_deg about the LiDAR z axis ...
+  double max_yaw_deg = 45.0;
+  /// ... in steps of this [deg] (also the rotation a coarse run may correct).
+  double yaw_step_deg = 7.5;
+  /// A RANSAC estimate with at least this many inliers (but too few to pass the
+  /// consistency check) is a hypothesis too.
+  int min_weak_inliers = 5;
+  /// The coarse runs pair residuals up to this [m] ...
+  double coarse_correspondence_distance_m = 1.5;
+  /// ... and may move up to this from their start [m].
+  double coarse_max_correction_m = 2.5;
+
+  /// \brief True when every member is valid; otherwise says why in *why.
+  bool
+  isValid(std::string* why = nullptr) const;
+};
+
 /// \brief Everything tracking can be tuned with; defaults suit a car-mounted
 /// HDL-64/VLP-16/Ouster at 10 Hz.
 ///
@@ -167,6 +192,8 @@ struct OdometryParams
 
   // ---- dense refinement ----
   DenseTrackingParams dense;
+  /// Dense search from several motion hypotheses when the features fail.
+  MotionHypothesisParams turn_search;
 
   // ---- key-frames (safety rules besides the paper's two) ----
   /// Leaf of the voxelized scan a key-frame keeps (and adds to the local map) [m].
