@@ -61,6 +61,16 @@ peakRssMb()
   return usage.ru_maxrss / 1024.0; // Linux: kilobytes
 }
 
+/// User + system CPU time of the whole process so far [s].
+double
+processCpuS()
+{
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return usage.ru_utime.tv_sec + usage.ru_stime.tv_sec +
+         1e-6 * (usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
+}
+
 /// One scan read ahead by the reader thread, or the reason it could not be read.
 struct ReadItem
 {
@@ -145,7 +155,7 @@ json
 timingJson(const rast::StageTiming& t)
 {
   return {{"mean", t.mean_ms}, {"median", t.median_ms}, {"max", t.max_ms},
-          {"count", t.count}, {"total", t.total_ms}};
+          {"count", t.count}, {"total", t.total_ms}, {"cpu_total", t.cpu_total_ms}};
 }
 
 json
@@ -413,6 +423,8 @@ run(int argc, char** argv)
   summary["loops_dropped_inconsistent"] = stats.loops_inconsistent;
   summary["loop_candidates"] = stats.loop_candidates;
   summary["pose_graph_runs"] = stats.pose_graph_runs;
+  summary["loop_searches_skipped"] = stats.loop_searches_skipped;
+  summary["map_cloud_mb"] = stats.map_cloud_bytes / (1024.0 * 1024.0);
   summary["loop_edges"] = loop_json;
   summary["tracking_status"] = stats.tracking_status;
   json timing;
@@ -422,6 +434,7 @@ run(int argc, char** argv)
   summary["wall_s"] = wall_s;
   summary["fps"] = wall_s > 0.0 ? stats.frames / wall_s : 0.0;
   summary["peak_rss_mb"] = peakRssMb();
+  summary["cpu_s"] = processCpuS();
   summary["render_backend"] = render.backend;
   summary["render_message"] = render.message;
   summary["params"] = {{"threads", threads},

@@ -143,7 +143,53 @@ selfSimilarity(const RasterFeatureSet& f,
   return static_cast<int>(r.inlier_indices.size());
 }
 
+/// \a cloud voxelized at \a voxel_m and cropped to \a radius_m around the sensor (x-y).
+PointVector
+cropped(const pcl::PointCloud<pcl::PointXYZI>& cloud, double voxel_m, double radius_m)
+{
+  PointVector points = voxelDownsample(toPointVector(cloud), voxel_m);
+  const double r_sq = radius_m * radius_m;
+  points.erase(std::remove_if(points.begin(),
+                              points.end(),
+                              [r_sq](const Eigen::Vector3d& p) {
+                                return p.head<2>().squaredNorm() > r_sq;
+                              }),
+               points.end());
+  return points;
+}
+
+constexpr double kDenseResolutionM = 0.01; // int16: +-327 m, far beyond the crop radius
+
 } // namespace
+
+/// The dense check's target points of a key-frame, quantized (6 bytes a point).
+std::vector<LoopDetector::DensePoint>
+LoopDetector::denseTarget(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                          const LoopDetectorParams& params)
+{
+  const PointVector points =
+      cropped(cloud, params.dense.target_voxel_size_m, params.dense_crop_radius_m);
+  std::vector<DensePoint> out;
+  out.reserve(points.size());
+  for (const Eigen::Vector3d& p : points) {
+    const Eigen::Vector3d q = (p / kDenseResolutionM).array().round();
+    if ((q.array().abs() <= 32767.0).all())
+      out.push_back({static_cast<std::int16_t>(q.x()),
+                     static_cast<std::int16_t>(q.y()),
+                     static_cast<std::int16_t>(q.z())});
+  }
+  return out;
+}
+
+PointVector
+LoopDetector::decodeDense(const std::vector<DensePoint>& points)
+{
+  PointVector out;
+  out.reserve(points.size());
+  for (const DensePoint& q : points)
+    out.emplace_back(q[0] * kDenseResolutionM, q[1] * kDenseResolutionM, q[2] * kDenseResolutionM);
+  return out;
+}
 
 // ---------------------------------------------------------------- params and names
 
@@ -171,6 +217,8 @@ LoopDetectorParams::isValid(std::string* why) const
     r << "retrieval_max_hamming must be in [0, 256], got " << retrieval_max_hamming;
   else if (!(max_bucket_fraction > 0.0 && max_bucket_fraction <= 1.0))
     r << "max_bucket_fraction must be in (0, 1], got " << max_bucket_fraction;
+  else if (max_bucket_size < 0)
+    r << "max_bucket_size must be >= 0, got " << max_bucket_size;
   else if (min_appearance_score < 1)
     r << "min_appearance_score must be >= 1, got " << min_appearance_score;
   else if (max_verifications < 1)
@@ -322,6 +370,8 @@ LoopDetector::addKeyFrame(const KeyFrame::ConstPtr& keyframe,
         last.travel_m +
         stepLength(*keyframe, T_world_keyframe, last.keyframe->id, last.T_world_keyframe);
   }
+  if (params_.dense_check && keyframe->cloud)
+    entry.dense_target = denseTarget(*keyframe->cloud, params_);
   entry.first_feature = static_cast<std::uint32_t>(feature_slot_.size());
   const auto slot = static_cast<std::uint32_t>(entries_.size());
   if (params_.retrieval != AppearanceRetrieval::kNone) {
@@ -382,9 +432,11 @@ LoopDetector::scoreAppearance(const KeyFrame& query,
   if (params_.retrieval == AppearanceRetrieval::kNone || feature_slot_.empty())
     return;
   const std::size_t total = feature_slot_.size();
-  const std::size_t max_bucket = std::max<std::size_t>(
+  std::size_t max_bucket = std::max<std::size_t>(
       64,
       static_cast<std::size_t>(params_.max_bucket_fraction * static_cast<double>(total)));
+  if (params_.max_bucket_size > 0)
+    max_bucket = std::min<std::size_t>(max_bucket, params_.max_bucket_size);
 
   if (params_.retrieval == AppearanceRetrieval::kSubstringVotes) {
     // Inverted index: each shared substring votes with weight log(N / n_bucket).
@@ -594,7 +646,8 @@ LoopDetector::detect(const KeyFrame& query, const Pose3d& T_world_query) const
                                params_.odometry_deviation_deg_per_m * travel;
     }
     const Pose3d guess = e.T_world_keyframe.inverse() * T_world_query;
-    out.verifications.push_back(verify(query, *e.keyframe, guess, tolerance));
+    out.verifications.push_back(
+        verifyPair(query, *e.keyframe, guess, tolerance, &e.dense_target));
     out.num_accepted += out.verifications.back().accepted;
   }
   out.num_rejected = static_cast<int>(out.verifications.size()) - out.num_accepted;
@@ -620,6 +673,16 @@ LoopDetector::verify(const KeyFrame& query,
                      const KeyFrame& candidate,
                      const Pose3d& T_candidate_query_guess,
                      const GuessTolerance& tolerance) const
+{
+  return verifyPair(query, candidate, T_candidate_query_guess, tolerance, nullptr);
+}
+
+LoopVerification
+LoopDetector::verifyPair(const KeyFrame& query,
+                         const KeyFrame& candidate,
+                         const Pose3d& T_candidate_query_guess,
+                         const GuessTolerance& tolerance,
+                         const std::vector<DensePoint>* candidate_dense) const
 {
   const auto t0 = Clock::now();
   LoopVerification v;
@@ -775,27 +838,20 @@ LoopDetector::verify(const KeyFrame& query,
   // 9. Dense check: point-to-plane refinement of the query's planar points on the
   // candidate's, then the share of query structure (walls, not ground) that fits.
   if (params_.dense_check) {
-    if (!query.cloud || !candidate.cloud)
+    if (!query.cloud || (!candidate.cloud && !(candidate_dense && !candidate_dense->empty())))
       return reject("dense check: a key-frame has no cloud");
     const PointToPlaneParams& dp = params_.dense;
     PointToPlaneTarget target, query_planes;
     PointToPlaneParams query_params = dp;
     query_params.target_voxel_size_m = dp.source_voxel_size_m;
-    auto cropped = [this](const pcl::PointCloud<pcl::PointXYZI>& cloud, double voxel_m) {
-      PointVector points = voxelDownsample(toPointVector(cloud), voxel_m);
-      const double r_sq = params_.dense_crop_radius_m * params_.dense_crop_radius_m;
-      points.erase(std::remove_if(points.begin(),
-                                  points.end(),
-                                  [r_sq](const Eigen::Vector3d& p) {
-                                    return p.head<2>().squaredNorm() > r_sq;
-                                  }),
-                   points.end());
-      return points;
-    };
     try {
-      target.build(cropped(*candidate.cloud, dp.target_voxel_size_m), dp);
-      query_planes.build(cropped(*query.cloud, query_params.target_voxel_size_m),
-                         query_params);
+      target.build(candidate_dense && !candidate_dense->empty()
+                       ? decodeDense(*candidate_dense)
+                       : decodeDense(denseTarget(*candidate.cloud, params_)),
+                   dp);
+      query_planes.build(
+          cropped(*query.cloud, query_params.target_voxel_size_m, params_.dense_crop_radius_m),
+          query_params);
     } catch (const std::invalid_argument& e) {
       return reject(std::string("dense check: ") + e.what());
     }

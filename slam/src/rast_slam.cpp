@@ -10,6 +10,7 @@
 #include <optional>
 #include <stdexcept>
 #include <thread>
+#include <time.h>
 
 namespace pcl {
 namespace rast {
@@ -22,6 +23,15 @@ double
 msSince(Clock::time_point start)
 {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+/// CPU time of the calling thread [ms].
+double
+threadCpuMs()
+{
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
 
 /// A FIFO handing work from one stage to the next: push() never blocks, pop() waits on a
@@ -48,6 +58,12 @@ public:
     item = std::move(items_.front());
     items_.pop_front();
     return true;
+  }
+  /// Items waiting.
+  std::size_t size()
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return items_.size();
   }
   void close()
   {
@@ -133,6 +149,8 @@ LoopClosingParams::isValid(std::string* why) const
              std::to_string(loop_reference_inliers);
   else if (!positive(inconsistent_chi2))
     reason = "inconsistent_chi2 must be > 0, got " + std::to_string(inconsistent_chi2);
+  else if (cooldown_keyframes < 0)
+    reason = "cooldown_keyframes must be >= 0, got " + std::to_string(cooldown_keyframes);
   else if (global_ba_max_iterations < 1)
     reason = "global_ba_max_iterations must be >= 1, got " +
              std::to_string(global_ba_max_iterations);
@@ -227,6 +245,10 @@ struct RastSlam::Impl
   // Statistics (own mutex: written by all stages).
   mutable std::mutex stats_mutex;
   std::vector<double> tracking_ms, mapping_ms, detection_ms, pose_graph_ms, global_ba_ms;
+  std::vector<double> retrieval_ms, verification_ms;
+  std::map<std::string, double> cpu_ms; ///< per stage, the threads' CPU time
+  std::size_t searches_skipped = 0;
+  int keyframes_since_loop = -1; ///< loop-closing thread only; -1: no loop yet
   std::map<std::string, std::size_t> status_counts;
   std::size_t skipped = 0, accepted = 0, rejected = 0, inconsistent = 0, candidates = 0;
   std::vector<LoopRecord> loop_records;
@@ -292,7 +314,8 @@ struct RastSlam::Impl
     try {
       KeyFrame::Ptr kf;
       while (loop_queue.pop(kf))
-        closeLoops(kf);
+        closeLoops(kf, params.loop_closing.search_newest_only_when_backlogged &&
+                           loop_queue.size() > 0);
     } catch (...) {
       recordError(std::current_exception());
     }
@@ -300,17 +323,38 @@ struct RastSlam::Impl
 
   void mapKeyFrame(const KeyFrame::Ptr& kf)
   {
+    const double cpu0 = threadCpuMs();
     const LocalMappingResult r = local_mapping.processKeyFrame(kf);
     std::lock_guard<std::mutex> lock(stats_mutex);
     mapping_ms.push_back(r.total_ms);
+    cpu_ms["local_mapping"] += threadCpuMs() - cpu0;
   }
 
   /// The loop-closing stage for one key-frame (after local mapping): search, verify,
-  /// and on an accepted loop optimize the pose graph of all key-frames.
-  void closeLoops(const KeyFrame::Ptr& kf)
+  /// and on an accepted loop optimize the pose graph of all key-frames. With \a backlog
+  /// (newer key-frames wait) or during the cooldown after a loop the key-frame only
+  /// joins the database. Its full cloud is released afterwards unless kept.
+  void closeLoops(const KeyFrame::Ptr& kf, bool backlog = false)
+  {
+    if (params.loop_closing.enable)
+      searchAndClose(kf, backlog);
+    if (!params.keep_keyframe_clouds)
+      map->releaseKeyFrameCloud(kf->id); // the detector keeps its dense target
+  }
+
+  void searchAndClose(const KeyFrame::Ptr& kf, bool backlog)
   {
     const Pose3d T_world_kf = map->keyFramePose(kf->id);
-    if (!params.loop_closing.enable) {
+    const int cooldown = params.loop_closing.cooldown_keyframes;
+    const bool cooling = keyframes_since_loop >= 0 && keyframes_since_loop < cooldown;
+    if (keyframes_since_loop >= 0)
+      ++keyframes_since_loop;
+    const double cpu0 = threadCpuMs();
+    if (backlog || cooling) {
+      detector.addKeyFrame(kf, T_world_kf);
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      ++searches_skipped;
+      cpu_ms["loop_detection"] += threadCpuMs() - cpu0;
       return;
     }
     const auto start = Clock::now();
@@ -321,6 +365,9 @@ struct RastSlam::Impl
     {
       std::lock_guard<std::mutex> lock(stats_mutex);
       detection_ms.push_back(detect_ms);
+      retrieval_ms.push_back(detection.retrieval_ms);
+      verification_ms.push_back(detection.verify_ms);
+      cpu_ms["loop_detection"] += threadCpuMs() - cpu0;
       candidates += detection.candidates.size();
       accepted += best ? 1 : 0;
       rejected += static_cast<std::size_t>(detection.num_rejected);
@@ -334,13 +381,17 @@ struct RastSlam::Impl
     }
     if (!best)
       return;
+    keyframes_since_loop = 0;
     LoopEdge edge;
     edge.query = best->query;
     edge.candidate = best->candidate;
     edge.T_candidate_query = best->T_candidate_query;
     edge.num_inliers = best->num_inliers;
     map->addLoopEdge(edge);
+    const double cpu1 = threadCpuMs();
     optimizeGraph();
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    cpu_ms["pose_graph"] += threadCpuMs() - cpu1;
   }
 
   /// Pose-graph optimisation over all key-frames: odometry edges (tracking's relative
@@ -503,7 +554,12 @@ RastSlam::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
     throw std::logic_error("RastSlam::addScan: called after finish()");
   if (impl_->failed())
     impl_->finish(); // joins and rethrows the worker's exception
+  const double cpu0 = threadCpuMs();
   OdometryFrameResult r = impl_->odometry.processFrame(cloud, timestamp_s, frame_index);
+  {
+    std::lock_guard<std::mutex> lock(impl_->stats_mutex);
+    impl_->cpu_ms["tracking"] += threadCpuMs() - cpu0;
+  }
   impl_->handleTracking(r, path, false, "");
   return r;
 }
@@ -575,6 +631,7 @@ RastSlam::statistics() const
   s.keyframes = map_->numKeyFrames();
   s.map_points = map_->numMapPoints();
   s.map_points_created = map_->numMapPointsCreated();
+  s.map_cloud_bytes = map_->mapCloudBytes();
   std::lock_guard<std::mutex> lock(impl_->stats_mutex);
   s.skipped_frames = impl_->skipped;
   s.loops_accepted = impl_->accepted;
@@ -588,6 +645,11 @@ RastSlam::statistics() const
   s.timing["loop_detection"] = timingOf(impl_->detection_ms);
   s.timing["pose_graph"] = timingOf(impl_->pose_graph_ms);
   s.timing["global_ba"] = timingOf(impl_->global_ba_ms);
+  s.timing["loop_retrieval"] = timingOf(impl_->retrieval_ms);
+  s.timing["loop_verification"] = timingOf(impl_->verification_ms);
+  for (const auto& [stage, ms] : impl_->cpu_ms)
+    s.timing[stage].cpu_total_ms = ms;
+  s.loop_searches_skipped = impl_->searches_skipped;
   return s;
 }
 

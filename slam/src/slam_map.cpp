@@ -87,6 +87,58 @@ voxelDownsample(const pcl::PointCloud<pcl::PointXYZI>& cloud, double leaf_m)
   return acc.cloud();
 }
 
+CompactCloud
+CompactCloud::fromCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud)
+{
+  CompactCloud out;
+  float max_intensity = 0.0f;
+  for (const auto& p : cloud.points)
+    if (std::isfinite(p.intensity))
+      max_intensity = std::max(max_intensity, p.intensity);
+  out.intensity_scale = max_intensity > 0.0f ? max_intensity / 255.0f : 0.0f;
+  const double inv_res = 1.0 / kResolutionM;
+  const auto quantize = [inv_res](float v, std::int16_t& q) {
+    const double s = std::round(v * inv_res);
+    if (!(std::abs(s) <= 32767.0)) // also rejects NaN
+      return false;
+    q = static_cast<std::int16_t>(s);
+    return true;
+  };
+  out.points.reserve(cloud.size());
+  for (const auto& p : cloud.points) {
+    Point q;
+    if (!quantize(p.x, q.x) || !quantize(p.y, q.y) || !quantize(p.z, q.z))
+      continue;
+    const float i = out.intensity_scale > 0.0f && std::isfinite(p.intensity)
+                        ? std::max(0.0f, p.intensity) / out.intensity_scale
+                        : 0.0f;
+    q.intensity = static_cast<std::uint8_t>(std::min(255.0f, std::round(i)));
+    out.points.push_back(q);
+  }
+  out.points.shrink_to_fit();
+  return out;
+}
+
+pcl::PointCloud<pcl::PointXYZI>::Ptr
+CompactCloud::toCloud() const
+{
+  auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+  out->points.reserve(points.size());
+  const auto res = static_cast<float>(kResolutionM);
+  for (const Point& q : points) {
+    pcl::PointXYZI p;
+    p.x = q.x * res;
+    p.y = q.y * res;
+    p.z = q.z * res;
+    p.intensity = q.intensity * intensity_scale;
+    out->points.push_back(p);
+  }
+  out->width = static_cast<std::uint32_t>(out->points.size());
+  out->height = 1;
+  out->is_dense = true;
+  return out;
+}
+
 void
 savePcdAtomically(const std::string& path, const pcl::PointCloud<pcl::PointXYZI>& cloud)
 {
@@ -120,9 +172,10 @@ SlamMap::addKeyFrame(const KeyFrame::Ptr& kf)
 {
   if (!kf)
     throw std::invalid_argument("SlamMap::addKeyFrame: null key-frame");
-  pcl::PointCloud<pcl::PointXYZI>::ConstPtr map_cloud = kf->cloud;
-  if (map_cloud && map_cloud_leaf_m_ > 0.0)
-    map_cloud = voxelDownsample(*map_cloud, map_cloud_leaf_m_);
+  CompactCloud map_cloud;
+  if (kf->cloud)
+    map_cloud = CompactCloud::fromCloud(
+        map_cloud_leaf_m_ > 0.0 ? *voxelDownsample(*kf->cloud, map_cloud_leaf_m_) : *kf->cloud);
   std::lock_guard<std::mutex> lock(mutex_);
   if (kf->id != keyframes_.size())
     throw std::invalid_argument("SlamMap::addKeyFrame: expected id " +
@@ -134,8 +187,8 @@ SlamMap::addKeyFrame(const KeyFrame::Ptr& kf)
   entry.T_world_keyframe = keyframes_.empty()
                                ? kf->T_world_keyframe
                                : keyframes_.back().T_world_keyframe * kf->T_previous_keyframe;
-  entry.map_cloud = map_cloud;
-  keyframes_.push_back(entry);
+  entry.map_cloud = std::move(map_cloud);
+  keyframes_.push_back(std::move(entry));
   kf->map_point_ids.assign(kf->features.size(), kNoMapPoint);
   return entry.T_world_keyframe;
 }
@@ -200,6 +253,30 @@ SlamMap::keyFramePoses() const
   for (const auto& e : keyframes_)
     out.push_back(e.T_world_keyframe);
   return out;
+}
+
+pcl::PointCloud<pcl::PointXYZI>::Ptr
+SlamMap::keyFrameCloud(KeyFrameId id) const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  return keyframes_.at(id).map_cloud.toCloud();
+}
+
+void
+SlamMap::releaseKeyFrameCloud(KeyFrameId id)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  keyframes_.at(id).kf->cloud.reset();
+}
+
+std::size_t
+SlamMap::mapCloudBytes() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::size_t bytes = 0;
+  for (const auto& e : keyframes_)
+    bytes += e.map_cloud.bytes();
+  return bytes;
 }
 
 std::vector<KeyFrame::Ptr>
@@ -479,27 +556,29 @@ SlamMap::framePoses() const
 pcl::PointCloud<pcl::PointXYZI>::Ptr
 SlamMap::buildMap(double leaf_m) const
 {
-  std::vector<std::pair<pcl::PointCloud<pcl::PointXYZI>::ConstPtr, Pose3d>> clouds;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    for (const auto& e : keyframes_)
-      if (e.map_cloud)
-        clouds.emplace_back(e.map_cloud, e.T_world_keyframe);
-  }
+  // Points are decoded under the lock (the compact clouds are small; no copy of them).
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto res = static_cast<float>(CompactCloud::kResolutionM);
+  auto forEachPoint = [&](auto&& f) {
+    for (const auto& e : keyframes_) {
+      const Eigen::Isometry3d& T = e.T_world_keyframe;
+      for (const CompactCloud::Point& q : e.map_cloud.points)
+        f(T * Eigen::Vector3d(q.x * res, q.y * res, q.z * res),
+          q.intensity * e.map_cloud.intensity_scale);
+    }
+  };
   if (leaf_m > 0.0) {
     VoxelAccumulator acc(leaf_m);
-    for (const auto& [cloud, T] : clouds)
-      for (const auto& p : cloud->points)
-        acc.add(T * p.getVector3fMap().cast<double>(), p.intensity);
+    forEachPoint([&](const Eigen::Vector3d& p, float i) { acc.add(p, i); });
     return acc.cloud();
   }
   auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
-  for (const auto& [cloud, T] : clouds)
-    for (const auto& p : cloud->points) {
-      pcl::PointXYZI q = p;
-      q.getVector3fMap() = (T * p.getVector3fMap().cast<double>()).cast<float>();
-      out->push_back(q);
-    }
+  forEachPoint([&](const Eigen::Vector3d& p, float i) {
+    pcl::PointXYZI q;
+    q.getVector3fMap() = p.cast<float>();
+    q.intensity = i;
+    out->push_back(q);
+  });
   out->width = static_cast<std::uint32_t>(out->size());
   out->height = 1;
   return out;

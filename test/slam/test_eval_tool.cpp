@@ -6,6 +6,8 @@
 #include <filesystem>
 #include <fstream>
 #include <gtest/gtest.h>
+
+#include <unistd.h>
 #include <nlohmann/json.hpp>
 #include <pcl/slam/pose_io.h>
 #include <string>
@@ -32,7 +34,8 @@ runEval(const std::string& args)
     ADD_FAILURE() << tool << " not found: build the pcl_rast_eval target first";
     return result;
   }
-  const auto err = fs::temp_directory_path() / "pcl_rast_test" / "eval_tool_stderr.txt";
+  const auto err = fs::temp_directory_path() / "pcl_rast_test" /
+                   ("eval_tool_stderr_" + std::to_string(::getpid()) + ".txt");
   fs::create_directories(err.parent_path());
   const std::string command = "'" + tool + "' " + args + " 2>'" + err.string() + "'";
   FILE* pipe = popen(command.c_str(), "r");

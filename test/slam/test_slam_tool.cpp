@@ -7,6 +7,8 @@
 #include <pcl/io/pcd_io.h>
 
 #include <gtest/gtest.h>
+
+#include <unistd.h>
 #include <nlohmann/json.hpp>
 
 #include "test_data.h"
@@ -50,7 +52,9 @@ const fs::path&
 sequenceDir()
 {
   static const fs::path dir = [] {
-    const fs::path d = fs::temp_directory_path() / "pcl_rast_test" / "slam_tool_sequence";
+    // One folder per process: ctest -j runs this binary's test cases in parallel.
+    const fs::path d = fs::temp_directory_path() / "pcl_rast_test" /
+                       ("slam_tool_sequence_" + std::to_string(::getpid()));
     fs::remove_all(d);
     pcl::rast::PathParams path;
     path.type = pcl::rast::PathType::kStraight;

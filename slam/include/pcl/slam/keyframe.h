@@ -49,7 +49,9 @@ struct KeyFrame
   std::vector<MapPointId> map_point_ids;
 
   /// The voxelized scan in this key-frame's LiDAR frame (for the merged map, dense
-  /// loop verification and refinement targets). Shared, never modified.
+  /// loop verification and refinement targets). Never modified; RastSlam releases it
+  /// (null) once loop closing is done with the key-frame unless
+  /// SlamParams::keep_keyframe_clouds is set: the SLAM map keeps a compact copy.
   pcl::PointCloud<pcl::PointXYZI>::ConstPtr cloud;
 };
 

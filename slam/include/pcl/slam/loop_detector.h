@@ -9,6 +9,7 @@
 /// dense point-to-plane check, consistency with odometry). See doc/loop_closure.md.
 /// \ingroup slam
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -67,6 +68,9 @@ struct LoopDetectorParams
   /// Substring buckets holding more than this fraction of all indexed features (and
   /// more than 64) are skipped: generic patterns, "stop words".
   double max_bucket_fraction = 0.01;
+  /// ... and buckets holding more than this many features whatever the database size
+  /// (bounds the retrieval cost, which otherwise grows with the database). 0: no cap.
+  int max_bucket_size = 256;
   /// kHammingVotes: votes of a key-frame are histogrammed by the keypoint rotation they
   /// imply (ORB angle difference) in bins of this size, and its score is the best
   /// three-bin window: a real revisit votes for one relative yaw, chance look-alikes
@@ -309,9 +313,15 @@ public:
   Pose3d pose(KeyFrameId id) const;
 
 private:
+  /// A dense-check target point in the key-frame's LiDAR frame, quantized to 1 cm.
+  using DensePoint = std::array<std::int16_t, 3>;
   struct Entry
   {
     KeyFrame::ConstPtr keyframe;
+    /// The key-frame's cloud as the dense check's target needs it (voxelized at
+    /// dense.target_voxel_size_m, cropped to dense_crop_radius_m), prepared once at
+    /// insertion: the key-frame's own cloud may be released afterwards.
+    std::vector<DensePoint> dense_target;
     Pose3d T_world_keyframe = Pose3d::Identity();
     double travel_m = 0.0;           ///< distance travelled up to this key-frame
     std::uint32_t first_feature = 0; ///< global index of its first indexed feature
@@ -320,6 +330,15 @@ private:
   void scoreAppearance(const KeyFrame& query,
                        const std::vector<char>& eligible,
                        std::vector<double>& votes) const;
+  /// verify() with the candidate's dense target given (nullptr: from candidate.cloud).
+  LoopVerification verifyPair(const KeyFrame& query,
+                              const KeyFrame& candidate,
+                              const Pose3d& T_candidate_query_guess,
+                              const GuessTolerance& tolerance,
+                              const std::vector<DensePoint>* candidate_dense) const;
+  static std::vector<DensePoint> denseTarget(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                                             const LoopDetectorParams& params);
+  static PointVector decodeDense(const std::vector<DensePoint>& points);
   double travelTo(const KeyFrame& query, const Pose3d& T_world_query) const;
   std::vector<char> eligibleSlots(const KeyFrame& query, double query_travel_m) const;
 

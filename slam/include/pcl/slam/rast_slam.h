@@ -50,6 +50,15 @@ struct LoopClosingParams
   /// After optimizing, loop edges with chi2 above this are dropped and the graph is
   /// re-optimized (6 dof: 22.5 = 99.9 %).
   double inconsistent_chi2 = 22.5;
+  /// After an accepted loop, the next this many key-frames are only added to the
+  /// detector's database, not searched (as ORB-SLAM does): consecutive key-frames of a
+  /// revisit find the same loop again, and each costs a dense check and a pose-graph
+  /// optimisation. 0: search every key-frame.
+  int cooldown_keyframes = 10;
+  /// Threaded mode: when key-frames wait in the loop-closing queue, only the newest one
+  /// is searched, the older ones are only added to the database (the stage keeps up with
+  /// tracking instead of falling behind). Deterministic mode never waits.
+  bool search_newest_only_when_backlogged = true;
   /// Run a global bundle adjustment (all key-frames, all map points, loop edges as
   /// pose constraints) after each pose-graph optimization: the paper's comparison.
   /// Keeps every map point (no culling from memory), so it is for measurements only.
@@ -75,6 +84,11 @@ struct SlamParams
   /// (<= 0: tracking's voxelized cloud is shared, no copy). A leaf coarser than
   /// tracking's key-frame voxel bounds the memory of long sequences.
   double map_cloud_leaf_m = 0.0;
+  /// false: a key-frame's full-precision cloud (KeyFrame::cloud) is released once loop
+  /// closing has prepared what it needs from it; the map keeps a compact copy
+  /// (SlamMap::keyFrameCloud, 8 bytes a point) for buildMap. true: kept (memory grows
+  /// by ~32 bytes a point per key-frame).
+  bool keep_keyframe_clouds = false;
 
   bool isValid(std::string* why = nullptr) const;
 };
@@ -87,6 +101,7 @@ struct StageTiming
   double median_ms = 0.0;
   double max_ms = 0.0;
   double total_ms = 0.0;
+  double cpu_total_ms = 0.0; ///< CPU time of the stage's thread (0: not measured)
 };
 
 /// \brief Counts and timings of a run.
@@ -102,10 +117,14 @@ struct SlamStatistics
   std::size_t loops_inconsistent = 0; ///< accepted, later dropped by the pose graph
   std::size_t loop_candidates = 0;    ///< candidates proposed
   std::size_t pose_graph_runs = 0;
+  /// Key-frames added to the loop database without a search (cooldown after a loop,
+  /// or a backlog in threaded mode).
+  std::size_t loop_searches_skipped = 0;
+  std::size_t map_cloud_bytes = 0; ///< compact key-frame clouds kept by the map
   std::map<std::string, std::size_t> tracking_status; ///< frames per tracking status
   /// Per stage: "tracking" (per frame), "local_mapping" (per key-frame),
-  /// "loop_detection" (per key-frame), "pose_graph" (per optimization),
-  /// "global_ba" (per run).
+  /// "loop_detection" (per searched key-frame, with its "loop_retrieval" and
+  /// "loop_verification" parts), "pose_graph" (per optimization), "global_ba" (per run).
   std::map<std::string, StageTiming> timing;
 };
 

@@ -69,6 +69,30 @@ struct LoopEdge
   bool active = true; ///< false once found inconsistent by the pose graph and dropped
 };
 
+/// \brief A key-frame cloud stored compactly for the merged map: coordinates in the
+/// key-frame's LiDAR frame quantized to kResolutionM in int16 (+-327 m), intensity as
+/// uint8 scaled by the cloud's maximum. 8 bytes per point instead of 32 (PointXYZI).
+struct CompactCloud
+{
+  struct Point
+  {
+    std::int16_t x = 0, y = 0, z = 0;
+    std::uint8_t intensity = 0;
+  };
+  static constexpr double kResolutionM = 0.01;
+  std::vector<Point> points;
+  float intensity_scale = 0.0f; ///< intensity = stored value * intensity_scale
+
+  /// \brief Quantize \a cloud; non-finite points and points beyond the int16 range
+  /// (327 m) are dropped.
+  static CompactCloud fromCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud);
+  /// \brief The points as a PointXYZI cloud (key-frame frame).
+  pcl::PointCloud<pcl::PointXYZI>::Ptr toCloud() const;
+  std::size_t size() const { return points.size(); }
+  /// \brief Heap bytes held.
+  std::size_t bytes() const { return points.capacity() * sizeof(Point); }
+};
+
 /// \brief Thread-safe store of the SLAM state (see file comment).
 ///
 /// Corrections (local BA, pose graph) are written with applyKeyFramePoses(): key-frames
@@ -81,7 +105,7 @@ public:
   using ConstPtr = std::shared_ptr<const SlamMap>;
 
   /// \param[in] map_cloud_leaf_m each key-frame's cloud is kept for the merged map
-  /// voxel-downsampled to this leaf (<= 0: shared as it is), which bounds memory.
+  /// voxel-downsampled to this leaf (<= 0: all its points), quantized (CompactCloud).
   explicit SlamMap(double map_cloud_leaf_m = 0.0) : map_cloud_leaf_m_(map_cloud_leaf_m) {}
   SlamMap(const SlamMap&) = delete;
   SlamMap& operator=(const SlamMap&) = delete;
@@ -111,6 +135,17 @@ public:
   PoseVector keyFramePoses() const;
   /// \brief All key-frames, in id order.
   std::vector<KeyFrame::Ptr> keyFrames() const;
+  /// \brief The compact copy of key-frame \a id's cloud kept for the merged map, as a
+  /// cloud in the key-frame's LiDAR frame (empty when the key-frame had no cloud).
+  /// \throws std::out_of_range on an unknown id.
+  pcl::PointCloud<pcl::PointXYZI>::Ptr keyFrameCloud(KeyFrameId id) const;
+  /// \brief Drop key-frame \a id's full-precision cloud (KeyFrame::cloud becomes null)
+  /// once no stage needs it any more; the map keeps its compact copy. Callers that
+  /// read KeyFrame::cloud of key-frames from keyFrames() must not run concurrently.
+  /// \throws std::out_of_range on an unknown id.
+  void releaseKeyFrameCloud(KeyFrameId id);
+  /// \brief Heap bytes of the compact key-frame clouds (memory reports).
+  std::size_t mapCloudBytes() const;
   /// \brief The odometry-edge measurement T_previous_keyframe of key-frame \a id
   /// (tracking's value, refined by local BA when enabled).
   Pose3d odometryEdge(KeyFrameId id) const;
@@ -181,7 +216,7 @@ private:
     KeyFrame::Ptr kf;
     Pose3d T_world_keyframe = Pose3d::Identity();
     Pose3d T_previous_keyframe = Pose3d::Identity(); ///< odometry edge measurement
-    pcl::PointCloud<pcl::PointXYZI>::ConstPtr map_cloud; ///< for buildMap
+    CompactCloud map_cloud; ///< for buildMap
   };
   void applyPosesLocked(const std::map<KeyFrameId, Pose3d>& poses, bool propagate_to_newer);
 
