@@ -12,6 +12,7 @@
 #include "cli.h"
 #include "map_render.h"
 
+#include <pcl/segmentation/sac_ground_removal.h>
 #include <pcl/slam/lidar_simulator.h>
 #include <pcl/slam/pose_io.h>
 #include <pcl/slam/rast_slam.h>
@@ -44,6 +45,35 @@ namespace rast = pcl::rast;
 namespace fs = std::filesystem;
 using nlohmann::json;
 using pcl_rast_tools::ArgParser;
+
+/// Rotation that turns the ground normal around the start of the map into +z, or the
+/// identity when no ground is found there (then the picture is drawn as it is).
+Eigen::Matrix3d
+levellingRotation(const pcl::PointCloud<pcl::PointXYZI>& map)
+{
+  const auto near = pcl::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+  for (const auto& p : map.points)
+    if (p.getVector3fMap().squaredNorm() < 30.0f * 30.0f)
+      near->push_back(p);
+  rast::SACGroundRemovalParams params;
+  params.max_tilt_deg = 60.0; // a handheld sensor may be pitched far down
+  params.min_inliers = 50;
+  rast::GroundRemovalResult result;
+  try {
+    rast::SACGroundRemoval ground(params);
+    ground.setInputCloud(near);
+    ground.segment(result);
+  }
+  catch (const std::exception&) {
+    return Eigen::Matrix3d::Identity();
+  }
+  if (!result.ground_found)
+    return Eigen::Matrix3d::Identity();
+  Eigen::Vector3d up = result.plane_coefficients.head<3>().cast<double>().normalized();
+  if (up.z() < 0.0)
+    up = -up;
+  return Eigen::Quaterniond::FromTwoVectors(up, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+}
 
 std::atomic<bool> g_interrupted{false};
 
@@ -377,17 +407,24 @@ run(int argc, char** argv)
 
   const rast::PoseVector kf_poses = slam.keyFramePoses();
   const auto keyframes = slam.keyFrames();
+  // The picture (not the outputs, which stay in the first scan's frame) is levelled
+  // by the ground around the start, so a tilted or handheld first scan still renders
+  // as a view from above.
+  const Eigen::Matrix3d R_level = levellingRotation(*map);
+  const auto render_map = pcl::make_shared<pcl::PointCloud<pcl::PointXYZI>>(*map);
+  for (auto& p : render_map->points)
+    p.getVector3fMap() = (R_level * p.getVector3fMap().cast<double>()).cast<float>();
   pcl_rast_tools::MapRenderInput render_input;
-  render_input.map = map.get();
+  render_input.map = render_map.get();
   for (const auto& T : slam.framePoses())
-    render_input.trajectory.push_back(T.translation());
+    render_input.trajectory.push_back(R_level * T.translation());
   for (std::size_t i = 0; i < std::min(gt.size(), poses.size()); ++i)
-    render_input.ground_truth.push_back(gt[i].translation());
+    render_input.ground_truth.push_back(R_level * gt[i].translation());
   json loop_json = json::array();
   for (const auto& e : slam.loops()) {
     if (e.active)
-      render_input.loop_edges.emplace_back(kf_poses.at(e.candidate).translation(),
-                                           kf_poses.at(e.query).translation());
+      render_input.loop_edges.emplace_back(R_level * kf_poses.at(e.candidate).translation(),
+                                           R_level * kf_poses.at(e.query).translation());
     loop_json.push_back({{"query_keyframe", e.query},
                          {"candidate_keyframe", e.candidate},
                          {"query_frame", keyframes.at(e.query)->frame_index},
