@@ -5,11 +5,13 @@
 ///   pcl_rast_features SCAN [SCAN2] -output OUT.png [options]
 ///
 /// With two scans SCAN is the target and SCAN2 the source: the printed transform is
-/// T_scan_scan2 (maps SCAN2 points into SCAN's frame), estimated by brute-force
-/// Hamming matching, Lowe's ratio test and a 3-point rigid RANSAC. Matches kept by
+/// T_scan_scan2 (maps SCAN2 points into SCAN's frame), estimated by the registration
+/// module: Hamming matching (mutual check, Lowe's ratio test) and rigid RANSAC. Kept by
 /// RANSAC are drawn green, the rejected ones red.
 
 #include <pcl/features/orb_raster_features.h>
+#include <pcl/registration/hamming_correspondence_estimation.h>
+#include <pcl/registration/rigid_ransac.h>
 #include <pcl/segmentation/sac_ground_removal.h>
 #include <pcl/slam/sequence_reader.h>
 
@@ -23,7 +25,6 @@
 #include <cmath>
 #include <fstream>
 #include <iostream>
-#include <random>
 #include <string>
 #include <vector>
 
@@ -104,93 +105,6 @@ processScan(const std::string& path, const Options& options)
             << frame.ground_ms + frame.orb.raster_ms + frame.orb.detect_ms + frame.orb.describe_ms
             << "\n";
   return frame;
-}
-
-/// Brute-force Hamming matching with Lowe's ratio test: (source, target) pairs.
-std::vector<std::pair<int, int>>
-matchRatio(const pcl::rast::RasterFeatureSet& source,
-           const pcl::rast::RasterFeatureSet& target,
-           double ratio)
-{
-  std::vector<std::pair<int, int>> matches;
-  for (std::size_t i = 0; i < source.size(); ++i) {
-    int best = 257, second = 257, best_j = -1;
-    for (std::size_t j = 0; j < target.size(); ++j) {
-      const int d = pcl::rast::hammingDistance(source.descriptors[i], target.descriptors[j]);
-      if (d < best) {
-        second = best;
-        best = d;
-        best_j = static_cast<int>(j);
-      }
-      else if (d < second)
-        second = d;
-    }
-    if (best_j >= 0 && best < ratio * second)
-      matches.emplace_back(static_cast<int>(i), best_j);
-  }
-  return matches;
-}
-
-/// 3-point rigid RANSAC over the matches (Umeyama per sample, refit on the inliers).
-Eigen::Matrix4f
-ransacRigid(const pcl::rast::RasterFeatureSet& source,
-            const pcl::rast::RasterFeatureSet& target,
-            const std::vector<std::pair<int, int>>& matches,
-            float threshold_m,
-            int iterations,
-            std::vector<bool>& is_inlier)
-{
-  is_inlier.assign(matches.size(), false);
-  if (matches.size() < 3)
-    return Eigen::Matrix4f::Identity();
-  auto src = [&](int m) {
-    const auto& p = source.points[matches[m].first];
-    return Eigen::Vector3f(p.x, p.y, p.z);
-  };
-  auto tgt = [&](int m) {
-    const auto& p = target.points[matches[m].second];
-    return Eigen::Vector3f(p.x, p.y, p.z);
-  };
-  auto fit = [&](const std::vector<int>& ms) {
-    Eigen::Matrix3Xf a(3, ms.size()), b(3, ms.size());
-    for (std::size_t k = 0; k < ms.size(); ++k) {
-      a.col(k) = src(ms[k]);
-      b.col(k) = tgt(ms[k]);
-    }
-    return Eigen::Matrix4f(Eigen::umeyama(a, b, false));
-  };
-  auto consensus = [&](const Eigen::Matrix4f& T) {
-    std::vector<int> in;
-    for (int m = 0; m < static_cast<int>(matches.size()); ++m)
-      if ((T.topLeftCorner<3, 3>() * src(m) + T.topRightCorner<3, 1>() - tgt(m)).norm() <
-          threshold_m)
-        in.push_back(m);
-    return in;
-  };
-  std::mt19937 rng(7);
-  std::uniform_int_distribution<int> pick(0, static_cast<int>(matches.size()) - 1);
-  std::vector<int> best_inliers;
-  Eigen::Matrix4f best_T = Eigen::Matrix4f::Identity();
-  for (int it = 0; it < iterations; ++it) {
-    const std::vector<int> sample{pick(rng), pick(rng), pick(rng)};
-    if (sample[0] == sample[1] || sample[0] == sample[2] || sample[1] == sample[2])
-      continue;
-    const Eigen::Matrix4f T = fit(sample);
-    if (!T.allFinite())
-      continue;
-    auto in = consensus(T);
-    if (in.size() > best_inliers.size()) {
-      best_inliers = std::move(in);
-      best_T = T;
-    }
-  }
-  if (best_inliers.size() >= 3) {
-    best_T = fit(best_inliers);
-    best_inliers = consensus(best_T);
-  }
-  for (const int m : best_inliers)
-    is_inlier[m] = true;
-  return best_T;
 }
 
 /// Gray raster as colour, empty pixels black, with contrast stretched for viewing.
@@ -307,11 +221,27 @@ run(int argc, char** argv)
     const FrameFeatures b = processScan(options.scan2, options);
     std::cout << "features2=" << b.features.size() << "\n";
     const auto start = Clock::now();
-    const auto matches = matchRatio(b.features, a.features, options.ratio);
-    std::vector<bool> is_inlier;
-    const Eigen::Matrix4f T = ransacRigid(b.features, a.features, matches,
-                                          static_cast<float>(options.ransac_threshold_m),
-                                          options.ransac_iterations, is_inlier);
+    // The registration module's own chain, as the odometry uses it: Hamming matching
+    // (mutual check + ratio test), then rigid RANSAC. Source = scan 2, target = scan 1.
+    pcl::rast::HammingMatchParams match_params;
+    match_params.ratio = options.ratio;
+    const pcl::Correspondences matches =
+        pcl::rast::matchHamming(b.features, a.features, match_params);
+    pcl::rast::RigidRansacParams ransac_params;
+    ransac_params.inlier_threshold_m = options.ransac_threshold_m;
+    ransac_params.max_iterations = options.ransac_iterations;
+    ransac_params.min_inliers = 3;
+    std::vector<bool> is_inlier(matches.size(), false);
+    Eigen::Matrix4f T = Eigen::Matrix4f::Identity();
+    if (matches.size() >= 3) {
+      const pcl::rast::RigidRansacResult ransac = pcl::rast::estimateRigidRansac(
+          b.features.points, a.features.points, matches, ransac_params);
+      if (ransac.success) {
+        T = ransac.T_target_source.matrix().cast<float>();
+        for (const int m : ransac.inlier_indices)
+          is_inlier[m] = true;
+      }
+    }
     const double match_ms = msSince(start);
     const auto num_inliers = std::count(is_inlier.begin(), is_inlier.end(), true);
     const float yaw_deg = std::atan2(T(1, 0), T(0, 0)) * 180.0f / static_cast<float>(M_PI);
@@ -338,8 +268,8 @@ run(int argc, char** argv)
     drawKeypoints(canvas, a.features, 0);
     drawKeypoints(canvas, b.features, left.cols + gap);
     for (std::size_t m = 0; m < matches.size(); ++m) {
-      const auto& pa = a.features.points[matches[m].second];
-      const auto& pb = b.features.points[matches[m].first];
+      const auto& pa = a.features.points[matches[m].index_match];
+      const auto& pb = b.features.points[matches[m].index_query];
       cv::line(canvas, cv::Point2f(pa.u, pa.v), cv::Point2f(pb.u + left.cols + gap, pb.v),
                is_inlier[m] ? cv::Scalar(0, 220, 0) : cv::Scalar(0, 0, 255), 1, cv::LINE_AA);
     }
