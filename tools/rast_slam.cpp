@@ -246,14 +246,14 @@ run(int argc, char** argv)
   std::string input, output, gt_path, threads = defaults.deterministic ? "off" : "on";
   int first = 0, last = -1, stride = 1;
   bool no_loop = !defaults.loop_closing.enable;
-  bool no_ba = !defaults.local_mapping.enable_bundle_adjustment;
+  bool no_ba = false;
   bool ba = false;
   bool global_ba = defaults.loop_closing.global_bundle_adjustment;
   double map_leaf_m = 0.2;
   bool software_render = false, quiet = false;
 
   ArgParser parser("pcl_rast_slam",
-                   "LiDAR SLAM on rasterized ORB features (tracking, local mapping with "
+                   "LiDAR SLAM on rasterized ORB features (tracking, local mapping with optional "
                    "bundle adjustment, loop closing with a pose graph) on a folder of "
                    ".bin/.pcd/.ply scans (a velodyne/ or pcd/ subfolder is found). Writes "
                    "poses_kitti.txt, poses_tum.txt, map.pcd, render.png and summary.json "
@@ -290,14 +290,14 @@ run(int argc, char** argv)
                                 std::to_string(stride));
   if (!(map_leaf_m > 0.0))
     throw std::invalid_argument("-map-leaf must be > 0, got " + std::to_string(map_leaf_m));
-  if (ba && parser.given("no-ba"))
+  if (ba && no_ba)
     throw std::invalid_argument("-ba and -no-ba contradict each other");
   rast::SlamParams params = defaults;
   params.deterministic = threads == "off";
   params.loop_closing.enable = !no_loop;
   if (ba)
     params.local_mapping.enable_bundle_adjustment = true;
-  if (no_ba && parser.given("no-ba"))
+  if (no_ba)
     params.local_mapping.enable_bundle_adjustment = false;
   params.loop_closing.global_bundle_adjustment = global_ba;
   std::string why;

@@ -68,7 +68,8 @@ ArgParser::addSwitch(const std::string& name, const std::string& help, bool* out
   option.help = help;
   option.kind = "";
   option.takes_value = false;
-  option.default_text = *out ? "on" : "off";
+  // A switch is off unless given: it has no default worth printing.
+  option.default_text = "";
   option.assign = [out](const std::string&) { *out = true; };
   options_.push_back(std::move(option));
 }
