@@ -490,10 +490,12 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   start = Clock::now();
   Points3f source;
   if (params.registration.refine || !features_ok)
-    source = odometry_detail::strideSubsample(
-        odometry_detail::toPoints(*cloud, odometry_detail::voxelDownsampleIndices(
-                                              *cloud, params.dense.source_voxel_size_m, in_range)),
-        static_cast<std::size_t>(params.dense.max_source_points));
+    // Subsample the voxel indices, then copy only the points kept.
+    source = odometry_detail::toPoints(
+        *cloud, odometry_detail::strideSubsample(
+                    odometry_detail::voxelDownsampleIndices(
+                        *cloud, params.dense.source_voxel_size_m, in_range),
+                    static_cast<std::size_t>(params.dense.max_source_points)));
   auto keepDense = [&result](const DenseResult& dense) {
     result.dense_correspondences = dense.num_correspondences;
     result.dense_degenerate_directions = dense.degenerate_directions;

@@ -115,16 +115,16 @@ toPoints(const pcl::PointCloud<pcl::PointXYZI>& cloud, const std::vector<int>& i
   return out;
 }
 
-Points3f
-strideSubsample(const Points3f& points, std::size_t max_points)
+std::vector<int>
+strideSubsample(const std::vector<int>& indices, std::size_t max_points)
 {
-  if (max_points == 0 || points.size() <= max_points)
-    return points;
-  const std::size_t stride = (points.size() + max_points - 1) / max_points;
-  Points3f out;
-  out.reserve(points.size() / stride + 1);
-  for (std::size_t i = 0; i < points.size(); i += stride)
-    out.push_back(points[i]);
+  if (max_points == 0 || indices.size() <= max_points)
+    return indices;
+  const std::size_t stride = (indices.size() + max_points - 1) / max_points;
+  std::vector<int> out;
+  out.reserve(indices.size() / stride + 1);
+  for (std::size_t i = 0; i < indices.size(); i += stride)
+    out.push_back(indices[i]);
   return out;
 }
 

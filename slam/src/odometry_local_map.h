@@ -53,9 +53,9 @@ voxelDownsampleIndices(const pcl::PointCloud<pcl::PointXYZI>& cloud,
 Points3f
 toPoints(const pcl::PointCloud<pcl::PointXYZI>& cloud, const std::vector<int>& indices);
 
-/// \brief Every k-th point so that at most \a max_points remain (k = ceil(n / max)).
-Points3f
-strideSubsample(const Points3f& points, std::size_t max_points);
+/// \brief Every k-th index so that at most \a max_points remain (k = ceil(n / max)).
+std::vector<int>
+strideSubsample(const std::vector<int>& indices, std::size_t max_points);
 
 /// \brief The local map: voxels of the key-frames' points in the world frame, each with
 /// a plane (centroid, unit normal) fitted when the voxel changes.

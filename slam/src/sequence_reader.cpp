@@ -15,6 +15,7 @@
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
 #include <pcl/slam/sequence_reader.h>
+#include <pcl/slam/pose_io.h>
 #include <sstream>
 #include <system_error>
 
@@ -418,32 +419,6 @@ readTimes(const std::string& path)
   return times;
 }
 
-/// Write a file atomically: temporary file in the same folder, then rename.
-void
-writeBytesAtomically(const std::string& path, const char* data, std::size_t size)
-{
-  const std::string tmp = path + ".tmp";
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    if (!out)
-      throw std::runtime_error("writeKittiBin: cannot open '" + tmp + "' for writing");
-    out.write(data, static_cast<std::streamsize>(size));
-    out.flush();
-    if (!out) {
-      out.close();
-      std::remove(tmp.c_str());
-      throw std::runtime_error("writeKittiBin: writing '" + tmp + "' failed");
-    }
-  }
-  std::error_code ec;
-  fs::rename(tmp, path, ec);
-  if (ec) {
-    std::remove(tmp.c_str());
-    throw std::runtime_error("writeKittiBin: cannot rename '" + tmp + "' to '" + path +
-                             "': " + ec.message());
-  }
-}
-
 } // namespace
 
 pcl::PointCloud<pcl::PointXYZI>::Ptr
@@ -472,16 +447,15 @@ readScan(const std::string& path, std::size_t* num_dropped_non_finite)
 void
 writeKittiBin(const std::string& path, const pcl::PointCloud<pcl::PointXYZI>& cloud)
 {
-  std::vector<float> buffer;
-  buffer.reserve(cloud.size() * 4);
+  // float32 x y z intensity per point, written through pose_io's atomic writer.
+  std::string bytes(cloud.size() * 4 * sizeof(float), '\0');
+  char* out = bytes.data();
   for (const pcl::PointXYZI& p : cloud) {
-    buffer.push_back(p.x);
-    buffer.push_back(p.y);
-    buffer.push_back(p.z);
-    buffer.push_back(p.intensity);
+    const float values[4] = {p.x, p.y, p.z, p.intensity};
+    std::memcpy(out, values, sizeof(values));
+    out += sizeof(values);
   }
-  writeBytesAtomically(
-      path, reinterpret_cast<const char*>(buffer.data()), buffer.size() * sizeof(float));
+  writeFileAtomically(path, bytes);
 }
 
 bool
