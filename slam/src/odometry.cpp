@@ -83,21 +83,40 @@ constexpr int kReanchorAfterFrames = 3;
 /// Dense ICP from the prior (no feature support) is accepted only when at least this
 /// fraction of the source points pairs with map planes (well-tracked frames: 0.8-0.95).
 constexpr double kMinFallbackPairedRatio = 0.6;
+/// ... or fewer when the optimum is distinct: it pairs at least kDistinctPairsFactor
+/// times as many points as any hypothesis that ended elsewhere. Little overlap with the
+/// map is normal after a large motion against a single key-frame (cold start at 4 m per
+/// scan: 33-60 % paired), while a wrong start settling on the ground plane is never
+/// distinct: the ground pairs about as many points from anywhere.
+constexpr double kDistinctPairsFactor = 1.25;
+/// ... but never below this fraction.
+constexpr double kMinDistinctPairedRatio = 0.2;
 
 /// Starts for the dense search when the features fail: the prior, the weak feature
 /// estimates, and the prior's motion from \a T_world_last turned by +-k * yaw_step_deg
 /// (up to max_yaw_deg) about the LiDAR z axis, its translation turned by half that
-/// (a car's arc; negligible for slow handheld motion). Nearest-to-prior first.
+/// (a car's arc; negligible for slow handheld motion). Without a tracked velocity
+/// (\a max_travel_m > 0: cold start, after a tracking loss) the prior is also shifted
+/// along the LiDAR x axis (the direction of travel) by +-k * cold_start_step_m up to
+/// \a max_travel_m. Nearest-to-prior first.
 std::vector<Pose3d>
 motionHypotheses(const Pose3d& T_world_prior,
                  const Pose3d& T_world_last,
                  const std::vector<Pose3d>& weak_estimates,
+                 double max_travel_m,
                  const MotionHypothesisParams& params)
 {
   std::vector<Pose3d> starts{T_world_prior};
   if (!params.enabled)
     return starts;
   starts.insert(starts.end(), weak_estimates.begin(), weak_estimates.end());
+  const int shifts = static_cast<int>(std::ceil(max_travel_m / params.cold_start_step_m - 1e-9));
+  for (int k = 1; k <= shifts; ++k)
+    for (const int sign : {1, -1}) {
+      Pose3d shifted = Pose3d::Identity();
+      shifted.translation().x() = sign * k * params.cold_start_step_m;
+      starts.push_back(T_world_prior * shifted);
+    }
   const Pose3d delta = T_world_last.inverse() * T_world_prior;
   const int steps = static_cast<int>(std::floor(params.max_yaw_deg / params.yaw_step_deg + 1e-9));
   for (int k = 1; k <= steps; ++k)
@@ -112,9 +131,20 @@ motionHypotheses(const Pose3d& T_world_prior,
   return starts;
 }
 
+/// Outcome of the dense search over motion hypotheses.
+struct HypothesisSearch
+{
+  DenseResult dense;       ///< the standard refinement from the best coarse result
+  int best_pairs = 0;      ///< pairs of the best coarse run
+  int runner_up_pairs = 0; ///< most pairs of a coarse run that ended elsewhere
+};
+
 /// Dense ICP from every start with a wider basin (coarse), then the standard refinement
 /// from the coarse result that paired the most points (ties: lower RMS residual).
-DenseResult
+/// Also reports how well the best alternative did: a coarse run (converged or not)
+/// that ended farther than max_correspondence_distance_m or yaw_step_deg / 2 from the
+/// winner, so that the caller can tell a distinct optimum from an ambiguous one.
+HypothesisSearch
 bestDenseFromHypotheses(const Points3f& source,
                         const VoxelPlaneMap& map,
                         const std::vector<Pose3d>& starts,
@@ -126,20 +156,32 @@ bestDenseFromHypotheses(const Points3f& source,
                                                   params.coarse_correspondence_distance_m);
   coarse.max_correction_m = std::max(dense.max_correction_m, params.coarse_max_correction_m);
   coarse.max_correction_deg = std::max(dense.max_correction_deg, params.yaw_step_deg);
-  DenseResult best;
+  std::vector<DenseResult> runs;
+  runs.reserve(starts.size());
+  int best = -1;
   for (const Pose3d& start : starts) {
-    const DenseResult r = registerToMap(source, map, start, coarse);
+    runs.push_back(registerToMap(source, map, start, coarse));
+    const DenseResult& r = runs.back();
     if (!r.success || r.degenerate_directions > 0)
       continue;
-    if (!best.success || r.num_correspondences > best.num_correspondences ||
-        (r.num_correspondences == best.num_correspondences && r.rmse_m < best.rmse_m))
-      best = r;
+    if (best < 0 || r.num_correspondences > runs[best].num_correspondences ||
+        (r.num_correspondences == runs[best].num_correspondences && r.rmse_m < runs[best].rmse_m))
+      best = static_cast<int>(runs.size()) - 1;
   }
-  if (!best.success) {
-    best.message = "no motion hypothesis converged";
-    return best;
+  HypothesisSearch search;
+  if (best < 0) {
+    search.dense.message = "no motion hypothesis converged";
+    return search;
   }
-  return registerToMap(source, map, best.T_world_lidar, dense);
+  for (const DenseResult& r : runs) {
+    const Pose3d diff = runs[best].T_world_lidar.inverse() * r.T_world_lidar;
+    if (diff.translation().norm() > dense.max_correspondence_distance_m ||
+        angleDeg(diff) > params.yaw_step_deg / 2.0)
+      search.runner_up_pairs = std::max(search.runner_up_pairs, r.num_correspondences);
+  }
+  search.best_pairs = runs[best].num_correspondences;
+  search.dense = registerToMap(source, map, runs[best].T_world_lidar, dense);
+  return search;
 }
 
 } // namespace
@@ -192,6 +234,9 @@ MotionHypothesisParams::isValid(std::string* why) const
   else if (!finitePositive(coarse_correspondence_distance_m) ||
            !finitePositive(coarse_max_correction_m))
     reason = "coarse_correspondence_distance_m and coarse_max_correction_m must be > 0";
+  else if (!finitePositive(cold_start_step_m) || !(cold_start_max_speed_mps >= 0.0) ||
+           !std::isfinite(cold_start_max_speed_mps))
+    reason = "cold_start_step_m must be > 0 and cold_start_max_speed_mps >= 0";
   if (why)
     *why = reason;
   return reason.empty();
@@ -271,9 +316,15 @@ struct Odometry::Impl
   double t_last = 0.0, t_before = 0.0;
   bool have_index = false;
   std::size_t last_index = 0;
+  // Whether the last two poses were both tracked (features or dense), i.e. whether the
+  // constant-velocity prior is a measured motion; false at the cold start.
+  bool last_tracked = false;
+  bool velocity_tracked = false;
 
   Pose3d
   predict(double timestamp_s) const;
+  double
+  frameInterval(double timestamp_s) const;
   void
   checkIndex(std::size_t frame_index);
   void
@@ -303,6 +354,14 @@ Odometry::Impl::predict(double timestamp_s) const
   return T_world_last * scaleMotion(T_world_before.inverse() * T_world_last, ratio);
 }
 
+double
+Odometry::Impl::frameInterval(double timestamp_s) const
+{
+  const double dt = timestamp_s - t_last;
+  // Without usable timestamps assume 10 Hz; cap like predict() does.
+  return std::isfinite(dt) && dt > 1e-6 ? std::min(dt, 5.0) : 0.1;
+}
+
 void
 Odometry::Impl::checkIndex(std::size_t frame_index)
 {
@@ -327,6 +386,8 @@ Odometry::Impl::commitPose(const OdometryFrameResult& result)
                        result.status == TrackingStatus::kDenseFallback ||
                        result.status == TrackingStatus::kFirstFrame;
   frames_without_tracking = tracked ? 0 : frames_without_tracking + 1;
+  velocity_tracked = tracked && last_tracked;
+  last_tracked = tracked;
   if (result.keyframe) {
     frames_since_keyframe = 0;
     frames_without_tracking = 0;
@@ -535,20 +596,33 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   } else {
     // Feature-consistency check failed. Large motion (a sharp turn at a low frame rate)
     // makes the constant-velocity prior wrong, so dense ICP is started from several
-    // hypotheses: the prior, the weak feature estimates, and the prior turned by
-    // +-yaw steps; the best-paired result wins.
-    const std::vector<Pose3d> starts =
-        motionHypotheses(T_world_prior, T_world_last, weak_estimates, params.turn_search);
-    const DenseResult dense = bestDenseFromHypotheses(source, map, starts, params.dense, params.turn_search);
+    // hypotheses: the prior, the weak feature estimates, the prior turned by +-yaw
+    // steps and, without a tracked velocity (cold start), shifted along the direction
+    // of travel; the best-paired result wins.
+    const double max_travel_m =
+        velocity_tracked ? 0.0
+                         : params.turn_search.cold_start_max_speed_mps * frameInterval(result.timestamp_s);
+    const std::vector<Pose3d> starts = motionHypotheses(T_world_prior, T_world_last, weak_estimates,
+                                                        max_travel_m, params.turn_search);
+    const HypothesisSearch search =
+        bestDenseFromHypotheses(source, map, starts, params.dense, params.turn_search);
+    const DenseResult& dense = search.dense;
     keepDense(dense);
     result.degraded = true;
     const std::string why = "feature-consistency check failed (" +
                             std::to_string(result.num_inliers) + " inliers < " +
                             std::to_string(params.min_feature_inliers) + ")";
     // Dense ICP alone from a wrong start can settle on the ground plane with the wrong
-    // yaw; accept it only when most of the scan pairs with the map.
-    const bool well_paired = dense.num_correspondences >=
-                             kMinFallbackPairedRatio * std::max(1, dense.num_source_points);
+    // yaw; accept it only when most of the scan pairs with the map, or when fewer do
+    // but no other hypothesis comes close (a distinct optimum).
+    const double paired_ratio =
+        static_cast<double>(dense.num_correspondences) / std::max(1, dense.num_source_points);
+    // Distinct needs a rival that ended elsewhere: when every start agrees (or only the
+    // prior was tried) the ratio test above is all there is.
+    const bool distinct = search.runner_up_pairs > 0 &&
+                          search.best_pairs >= kDistinctPairsFactor * search.runner_up_pairs &&
+                          paired_ratio >= kMinDistinctPairedRatio;
+    const bool well_paired = paired_ratio >= kMinFallbackPairedRatio || distinct;
     if (dense.success && dense.degenerate_directions == 0 && well_paired) {
       result.status = TrackingStatus::kDenseFallback;
       result.T_world_lidar = dense.T_world_lidar;

@@ -147,6 +147,12 @@ struct MotionHypothesisParams
   double coarse_correspondence_distance_m = 1.5;
   /// ... and may move up to this from their start [m].
   double coarse_max_correction_m = 2.5;
+  /// Without a tracked velocity (the cold start, or after frames tracked by neither
+  /// features nor dense ICP) the prior says nothing about the speed: the prior is also
+  /// shifted along the LiDAR x axis (the direction of travel) by +-k * this [m] ...
+  double cold_start_step_m = 2.0;
+  /// ... up to this speed times the frame interval [m/s] (72 km/h: 10 m at 2 Hz).
+  double cold_start_max_speed_mps = 20.0;
 
   /// \brief True when every member is valid; otherwise says why in *why.
   bool
