@@ -24,12 +24,14 @@
 
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <condition_variable>
 #include <csignal>
 #include <cstdio>
 #include <deque>
 #include <filesystem>
 #include <iostream>
+#include <limits>
 #include <mutex>
 #include <optional>
 #include <sstream>
@@ -37,6 +39,7 @@
 #include <string>
 #include <sys/resource.h>
 #include <thread>
+#include <unordered_map>
 #include <unistd.h>
 
 namespace {
@@ -74,6 +77,66 @@ levellingRotation(const pcl::PointCloud<pcl::PointXYZI>& map)
     up = -up;
   return Eigen::Quaterniond::FromTwoVectors(up, Eigen::Vector3d::UnitZ()).toRotationMatrix();
 }
+
+/// The map as the picture needs it, gathered tile by tile while map.pcd is written:
+/// levelled by R_level and reduced to the highest point per pixel-sized cell of the
+/// top-down view, which is all the picture can show. A 5 M-point map of a 4 km drive
+/// shrinks about tenfold, and the render needs that much less memory.
+class RenderCloud
+{
+public:
+  /// \param[in] keyframe_positions where the map was seen from (its extent, roughly)
+  RenderCloud(const Eigen::Matrix3d& R_level,
+              const std::vector<Eigen::Vector3d>& keyframe_positions,
+              double map_leaf_m,
+              const pcl_rast_tools::MapRenderParams& render)
+    : R_(R_level.cast<float>())
+  {
+    constexpr double kMarginM = 50.0; // about what a scan sees beyond its key-frame
+    Eigen::Vector2d lo = Eigen::Vector2d::Constant(std::numeric_limits<double>::max());
+    Eigen::Vector2d hi = -lo;
+    for (const auto& p : keyframe_positions) {
+      lo = lo.cwiseMin((R_level * p).head<2>());
+      hi = hi.cwiseMax((R_level * p).head<2>());
+    }
+    if (keyframe_positions.empty())
+      return;
+    const double metres_per_px = std::max((hi.x() - lo.x() + 2 * kMarginM) / render.width_px,
+                                          (hi.y() - lo.y() + 2 * kMarginM) / render.height_px);
+    cell_m_ = std::max(metres_per_px, map_leaf_m);
+  }
+
+  void add(const pcl::PointCloud<pcl::PointXYZI>& tile)
+  {
+    for (pcl::PointXYZI p : tile.points) {
+      p.getVector3fMap() = R_ * p.getVector3fMap();
+      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))
+        continue;
+      const auto ix = static_cast<std::int64_t>(std::floor(p.x / cell_m_));
+      const auto iy = static_cast<std::int64_t>(std::floor(p.y / cell_m_));
+      const std::uint64_t key = (static_cast<std::uint64_t>(ix & 0xFFFFFFFF) << 32) |
+                                static_cast<std::uint64_t>(iy & 0xFFFFFFFF);
+      const auto [it, inserted] = top_.emplace(key, p);
+      if (!inserted && p.z > it->second.z)
+        it->second = p;
+    }
+  }
+
+  /// \brief The gathered points (cell order: the renderer sorts by height itself).
+  pcl::PointCloud<pcl::PointXYZI> cloud() const
+  {
+    pcl::PointCloud<pcl::PointXYZI> out;
+    out.reserve(top_.size());
+    for (const auto& [key, p] : top_)
+      out.push_back(p);
+    return out;
+  }
+
+private:
+  Eigen::Matrix3f R_;
+  double cell_m_ = 0.2;
+  std::unordered_map<std::uint64_t, pcl::PointXYZI> top_;
+};
 
 std::atomic<bool> g_interrupted{false};
 
@@ -305,6 +368,8 @@ run(int argc, char** argv)
     throw std::invalid_argument("invalid parameters: " + why);
 
   checkWritableFolder(output); // I/O error (exit 2) before any work
+  // Key-frame clouds wait for the final map in an anonymous file there, not in memory.
+  params.spill_directory = output;
   if (input.empty()) {
     if (!gt_path.empty())
       throw std::invalid_argument("-gt needs -input");
@@ -385,6 +450,7 @@ run(int argc, char** argv)
     std::cerr << "pcl_rast_slam: interrupted after " << processed
               << " frames; finishing and writing the results so far\n";
   slam.finish();
+  const double processing_peak_rss_mb = peakRssMb();
   const double wall_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
 
@@ -402,20 +468,38 @@ run(int argc, char** argv)
   rast::writeKittiPoses((out / "poses_kitti.txt").string(), poses);
   rast::writeTumPoses((out / "poses_tum.txt").string(), poses, times);
 
-  const auto map = slam.buildMap(map_leaf_m);
-  rast::savePcdAtomically((out / "map.pcd").string(), *map);
-
   const rast::PoseVector kf_poses = slam.keyFramePoses();
   const auto keyframes = slam.keyFrames();
   // The picture (not the outputs, which stay in the first scan's frame) is levelled
   // by the ground around the start, so a tilted or handheld first scan still renders
   // as a view from above.
-  const Eigen::Matrix3d R_level = levellingRotation(*map);
-  const auto render_map = pcl::make_shared<pcl::PointCloud<pcl::PointXYZI>>(*map);
-  for (auto& p : render_map->points)
-    p.getVector3fMap() = (R_level * p.getVector3fMap().cast<double>()).cast<float>();
+  Eigen::Matrix3d R_level = Eigen::Matrix3d::Identity();
+  if (!kf_poses.empty()) {
+    pcl::PointCloud<pcl::PointXYZI> first = *slam.map()->keyFrameCloud(0);
+    const Eigen::Matrix3f R = kf_poses.front().rotation().cast<float>();
+    const Eigen::Vector3f t = kf_poses.front().translation().cast<float>();
+    for (auto& p : first.points)
+      p.getVector3fMap() = R * p.getVector3fMap() + t;
+    R_level = levellingRotation(first);
+  }
+  pcl_rast_tools::MapRenderParams render_params;
+  render_params.force_software_fallback = software_render;
+  std::vector<Eigen::Vector3d> kf_positions;
+  for (const auto& T : kf_poses)
+    kf_positions.push_back(T.translation());
+  RenderCloud render_map(R_level, kf_positions, map_leaf_m, render_params);
+  // map.pcd is written tile by tile: the whole map is never held in memory.
+  rast::PcdStreamWriter pcd((out / "map.pcd").string());
+  slam.map()->forEachMapTile(map_leaf_m, [&](const pcl::PointCloud<pcl::PointXYZI>& tile) {
+    pcd.append(tile);
+    render_map.add(tile);
+  });
+  pcd.commit();
+  const std::size_t map_points = pcd.size();
   pcl_rast_tools::MapRenderInput render_input;
-  render_input.map = render_map.get();
+  const pcl::PointCloud<pcl::PointXYZI> render_points = render_map.cloud();
+  render_input.map = &render_points;
+  render_input.map_points_total = map_points;
   for (const auto& T : slam.framePoses())
     render_input.trajectory.push_back(R_level * T.translation());
   for (std::size_t i = 0; i < std::min(gt.size(), poses.size()); ++i)
@@ -437,8 +521,6 @@ run(int argc, char** argv)
   if (sequence_name == "velodyne" || sequence_name == "pcd" || sequence_name == "ply")
     sequence_name = fs::path(reader.scanFolder()).parent_path().filename();
   render_input.title = "pcl_rast_slam: " + sequence_name.string();
-  pcl_rast_tools::MapRenderParams render_params;
-  render_params.force_software_fallback = software_render;
   const auto render = pcl_rast_tools::renderMapTopDown(render_input, render_params,
                                                        (out / "render.png").string());
   if (!render.success)
@@ -454,7 +536,7 @@ run(int argc, char** argv)
   summary["keyframes"] = stats.keyframes;
   summary["map_points"] = stats.map_points;
   summary["map_points_created"] = stats.map_points_created;
-  summary["map_pcd_points"] = map->size();
+  summary["map_pcd_points"] = map_points;
   summary["loops_accepted"] = stats.loops_accepted;
   summary["loops_rejected"] = stats.loops_rejected;
   summary["loops_dropped_inconsistent"] = stats.loops_inconsistent;
@@ -462,6 +544,8 @@ run(int argc, char** argv)
   summary["pose_graph_runs"] = stats.pose_graph_runs;
   summary["loop_searches_skipped"] = stats.loop_searches_skipped;
   summary["map_cloud_mb"] = stats.map_cloud_bytes / (1024.0 * 1024.0);
+  for (const auto& [part, bytes] : stats.memory_bytes)
+    summary["memory_mb"][part] = bytes / (1024.0 * 1024.0);
   summary["loop_edges"] = loop_json;
   summary["tracking_status"] = stats.tracking_status;
   json timing;
@@ -471,6 +555,7 @@ run(int argc, char** argv)
   summary["wall_s"] = wall_s;
   summary["fps"] = wall_s > 0.0 ? stats.frames / wall_s : 0.0;
   summary["peak_rss_mb"] = peakRssMb();
+  summary["processing_peak_rss_mb"] = processing_peak_rss_mb; // before the outputs
   summary["cpu_s"] = processCpuS();
   summary["render_backend"] = render.backend;
   summary["render_message"] = render.message;
@@ -508,7 +593,7 @@ run(int argc, char** argv)
   rast::writeFileAtomically((out / "summary.json").string(), summary.dump(2) + "\n");
 
   std::cerr << "Wrote " << (out / "poses_kitti.txt").string() << ", poses_tum.txt, map.pcd ("
-            << map->size() << " points), render.png (" << render.backend
+            << map_points << " points), render.png (" << render.backend
             << "), summary.json\n";
   std::cerr << stats.frames << " frames, " << stats.keyframes << " key-frames, "
             << stats.loops_accepted << " loops accepted, " << wall_s << " s ("

@@ -318,7 +318,9 @@ LoopDetection::best() const
 
 // ---------------------------------------------------------------- database
 
-LoopDetector::LoopDetector(const LoopDetectorParams& params) : params_(params)
+LoopDetector::LoopDetector(const LoopDetectorParams& params, BlobStore::Ptr dense_store)
+  : params_(params)
+  , dense_store_(dense_store ? std::move(dense_store) : std::make_shared<BlobStore>())
 {
   std::string why;
   if (!params.isValid(&why))
@@ -371,7 +373,7 @@ LoopDetector::addKeyFrame(const KeyFrame::ConstPtr& keyframe,
         stepLength(*keyframe, T_world_keyframe, last.keyframe->id, last.T_world_keyframe);
   }
   if (params_.dense_check && keyframe->cloud)
-    entry.dense_target = denseTarget(*keyframe->cloud, params_);
+    entry.dense_target = dense_store_->putVector(denseTarget(*keyframe->cloud, params_));
   entry.first_feature = static_cast<std::uint32_t>(feature_slot_.size());
   const auto slot = static_cast<std::uint32_t>(entries_.size());
   if (params_.retrieval != AppearanceRetrieval::kNone) {
@@ -384,6 +386,22 @@ LoopDetector::addKeyFrame(const KeyFrame::ConstPtr& keyframe,
   }
   slot_of_.emplace(keyframe->id, entries_.size());
   entries_.push_back(std::move(entry));
+}
+
+LoopDetector::MemoryUsage
+LoopDetector::memoryUsage() const
+{
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  MemoryUsage m;
+  for (const Entry& e : entries_)
+    (dense_store_->spilled() ? m.dense_targets_on_disk : m.dense_targets) += e.dense_target.bytes;
+  m.appearance_index = feature_slot_.capacity() * sizeof(std::uint32_t);
+  // unordered_map node (key, vector, next pointer, malloc header) plus its bucket slot.
+  const std::size_t node_bytes = sizeof(std::uint32_t) + sizeof(std::vector<std::uint32_t>) +
+                                 2 * sizeof(void*) + sizeof(void*);
+  for (const auto& [key, bucket] : buckets_)
+    m.appearance_index += node_bytes + bucket.capacity() * sizeof(std::uint32_t);
+  return m;
 }
 
 void
@@ -646,8 +664,10 @@ LoopDetector::detect(const KeyFrame& query, const Pose3d& T_world_query) const
                                params_.odometry_deviation_deg_per_m * travel;
     }
     const Pose3d guess = e.T_world_keyframe.inverse() * T_world_query;
+    const std::vector<DensePoint> dense_target =
+        dense_store_->getVector<DensePoint>(e.dense_target);
     out.verifications.push_back(
-        verifyPair(query, *e.keyframe, guess, tolerance, &e.dense_target));
+        verifyPair(query, *e.keyframe, guess, tolerance, &dense_target));
     out.num_accepted += out.verifications.back().accepted;
   }
   out.num_rejected = static_cast<int>(out.verifications.size()) - out.num_accepted;

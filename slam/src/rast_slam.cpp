@@ -253,12 +253,12 @@ struct RastSlam::Impl
   std::size_t skipped = 0, accepted = 0, rejected = 0, inconsistent = 0, candidates = 0;
   std::vector<LoopRecord> loop_records;
 
-  Impl(const SlamParams& p, SlamMap::Ptr m)
+  Impl(const SlamParams& p, SlamMap::Ptr m, BlobStore::Ptr store)
     : params(p)
     , map(std::move(m))
     , odometry(p.odometry)
     , local_mapping(p.local_mapping, map)
-    , detector(p.loop_detector)
+    , detector(p.loop_detector, std::move(store))
   {
     if (p.loop_closing.global_bundle_adjustment)
       map->setKeepCulledMapPoints(true);
@@ -531,8 +531,10 @@ RastSlam::RastSlam(const SlamParams& params) : params_(params)
   std::string why;
   if (!params_.isValid(&why))
     throw std::invalid_argument("RastSlam: invalid params: " + why);
-  map_ = std::make_shared<SlamMap>(params_.map_cloud_leaf_m);
-  impl_ = std::make_unique<Impl>(params_, map_);
+  // One store for the bulky write-once data of both the map and the loop database.
+  const auto store = std::make_shared<BlobStore>(params_.spill_directory);
+  map_ = std::make_shared<SlamMap>(params_.map_cloud_leaf_m, store);
+  impl_ = std::make_unique<Impl>(params_, map_, store);
 }
 
 RastSlam::~RastSlam()
@@ -632,6 +634,17 @@ RastSlam::statistics() const
   s.map_points = map_->numMapPoints();
   s.map_points_created = map_->numMapPointsCreated();
   s.map_cloud_bytes = map_->mapCloudBytes();
+  const SlamMap::MemoryUsage map_memory = map_->memoryUsage();
+  s.memory_bytes["map_clouds"] = map_memory.map_clouds;
+  s.memory_bytes["map_clouds_on_disk"] = map_memory.map_clouds_on_disk;
+  s.memory_bytes["keyframe_clouds"] = map_memory.keyframe_clouds;
+  s.memory_bytes["features"] = map_memory.features;
+  s.memory_bytes["map_points"] = map_memory.map_points;
+  s.memory_bytes["frames"] = map_memory.frames;
+  const LoopDetector::MemoryUsage loop_memory = impl_->detector.memoryUsage();
+  s.memory_bytes["loop_dense_targets"] = loop_memory.dense_targets;
+  s.memory_bytes["loop_dense_targets_on_disk"] = loop_memory.dense_targets_on_disk;
+  s.memory_bytes["loop_appearance_index"] = loop_memory.appearance_index;
   std::lock_guard<std::mutex> lock(impl_->stats_mutex);
   s.skipped_frames = impl_->skipped;
   s.loops_accepted = impl_->accepted;

@@ -3,6 +3,8 @@
 #include <pcl/io/pcd_io.h>
 
 #include <algorithm>
+#include <array>
+#include <limits>
 #include <cmath>
 #include <cstdio>
 #include <set>
@@ -15,6 +17,21 @@ namespace rast {
 
 namespace {
 
+/// Side of the square world tiles buildMap voxelizes one at a time [m].
+constexpr double kMapTileSizeM = 100.0;
+
+/// Key of the voxel holding \a p: 21 bits per axis, +-1M voxels (+-100 km at 0.1 m).
+std::uint64_t
+voxelKey(const Eigen::Vector3d& p, double inv_leaf)
+{
+  const auto ix = static_cast<std::int64_t>(std::floor(p.x() * inv_leaf));
+  const auto iy = static_cast<std::int64_t>(std::floor(p.y() * inv_leaf));
+  const auto iz = static_cast<std::int64_t>(std::floor(p.z() * inv_leaf));
+  return (static_cast<std::uint64_t>(ix & 0x1FFFFF) << 42) |
+         (static_cast<std::uint64_t>(iy & 0x1FFFFF) << 21) |
+         static_cast<std::uint64_t>(iz & 0x1FFFFF);
+}
+
 /// Voxel accumulator: insertion-ordered cells, hashed by their integer coordinates.
 class VoxelAccumulator
 {
@@ -23,13 +40,7 @@ public:
 
   void add(const Eigen::Vector3d& p, float intensity)
   {
-    const std::int64_t ix = static_cast<std::int64_t>(std::floor(p.x() * inv_leaf_));
-    const std::int64_t iy = static_cast<std::int64_t>(std::floor(p.y() * inv_leaf_));
-    const std::int64_t iz = static_cast<std::int64_t>(std::floor(p.z() * inv_leaf_));
-    // 21 bits per axis: +-1M voxels, i.e. +-100 km at 0.1 m.
-    const std::uint64_t key = (static_cast<std::uint64_t>(ix & 0x1FFFFF) << 42) |
-                              (static_cast<std::uint64_t>(iy & 0x1FFFFF) << 21) |
-                              static_cast<std::uint64_t>(iz & 0x1FFFFF);
+    const std::uint64_t key = voxelKey(p, inv_leaf_);
     auto it = index_.find(key);
     if (it == index_.end()) {
       it = index_.emplace(key, cells_.size()).first;
@@ -45,6 +56,16 @@ public:
   {
     auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
     out->reserve(cells_.size());
+    appendTo(*out);
+    out->width = static_cast<std::uint32_t>(out->size());
+    out->height = 1;
+    out->is_dense = true;
+    return out;
+  }
+
+  /// Append one point (centroid, mean intensity) per voxel, in insertion order.
+  void appendTo(pcl::PointCloud<pcl::PointXYZI>& out) const
+  {
     for (const Cell& c : cells_) {
       pcl::PointXYZI q;
       const Eigen::Vector3d m = c.sum / static_cast<double>(c.count);
@@ -52,12 +73,8 @@ public:
       q.y = static_cast<float>(m.y());
       q.z = static_cast<float>(m.z());
       q.intensity = static_cast<float>(c.intensity / c.count);
-      out->push_back(q);
+      out.push_back(q);
     }
-    out->width = static_cast<std::uint32_t>(out->size());
-    out->height = 1;
-    out->is_dense = true;
-    return out;
   }
 
 private:
@@ -167,6 +184,100 @@ savePcdAtomically(const std::string& path, const pcl::PointCloud<pcl::PointXYZI>
   }
 }
 
+namespace {
+
+/// The folder of \a path ("." when it has none), for the spill file.
+std::string
+folderOf(const std::string& path)
+{
+  const std::size_t slash = path.find_last_of('/');
+  if (slash == std::string::npos)
+    return ".";
+  return slash == 0 ? "/" : path.substr(0, slash);
+}
+
+} // namespace
+
+PcdStreamWriter::PcdStreamWriter(const std::string& path) : path_(path), body_(folderOf(path))
+{}
+
+void
+PcdStreamWriter::append(const pcl::PointCloud<pcl::PointXYZI>& points)
+{
+  if (committed_)
+    throw std::logic_error("PcdStreamWriter::append after commit (" + path_ + ")");
+  if (points.empty())
+    return;
+  // PCD binary data: the fields x y z intensity of each point, packed (16 bytes).
+  std::vector<std::array<float, 4>> packed;
+  packed.reserve(points.size());
+  for (const auto& p : points.points)
+    packed.push_back({p.x, p.y, p.z, p.intensity});
+  chunks_.push_back(body_.putVector(packed));
+  num_points_ += points.size();
+}
+
+void
+PcdStreamWriter::commit()
+{
+  if (committed_)
+    throw std::logic_error("PcdStreamWriter::commit called twice (" + path_ + ")");
+  committed_ = true;
+  if (num_points_ == 0) {
+    savePcdAtomically(path_, pcl::PointCloud<pcl::PointXYZI>());
+    return;
+  }
+  if (num_points_ > static_cast<std::size_t>(std::numeric_limits<int>::max()))
+    throw std::runtime_error(path_ + ": " + std::to_string(num_points_) +
+                             " points are more than a PCD file can hold");
+  const std::string tmp = path_ + ".tmp." + std::to_string(::getpid());
+  std::FILE* file = std::fopen(tmp.c_str(), "wb");
+  if (!file)
+    throw std::runtime_error(path_ + ": cannot open " + tmp + " for writing");
+  bool ok = true;
+  const std::string header =
+      pcl::PCDWriter::generateHeader(pcl::PointCloud<pcl::PointXYZI>(),
+                                     static_cast<int>(num_points_)) +
+      "DATA binary\n";
+  ok = std::fwrite(header.data(), 1, header.size(), file) == header.size();
+  std::string why = "disk full?";
+  std::vector<char> buffer;
+  try {
+    for (std::size_t c = 0; ok && c < chunks_.size(); ++c) {
+      buffer.resize(chunks_[c].bytes);
+      body_.get(chunks_[c], buffer.data());
+      ok = std::fwrite(buffer.data(), 1, buffer.size(), file) == buffer.size();
+    }
+  } catch (const std::exception& e) {
+    ok = false;
+    why = e.what();
+  }
+  ok = std::fflush(file) == 0 && ok;
+  ok = std::fclose(file) == 0 && ok;
+  if (!ok) {
+    std::remove(tmp.c_str());
+    throw std::runtime_error(path_ + ": cannot write PCD (" + why + ")");
+  }
+  if (std::rename(tmp.c_str(), path_.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    throw std::runtime_error(path_ + ": cannot rename the temporary PCD into place");
+  }
+}
+
+SlamMap::SlamMap(double map_cloud_leaf_m, BlobStore::Ptr cloud_store)
+  : map_cloud_leaf_m_(map_cloud_leaf_m)
+  , cloud_store_(cloud_store ? std::move(cloud_store) : std::make_shared<BlobStore>())
+{}
+
+CompactCloud
+SlamMap::loadMapCloud(const KeyFrameEntry& entry) const
+{
+  CompactCloud cloud;
+  cloud.points = cloud_store_->getVector<CompactCloud::Point>(entry.map_cloud);
+  cloud.intensity_scale = entry.intensity_scale;
+  return cloud;
+}
+
 Pose3d
 SlamMap::addKeyFrame(const KeyFrame::Ptr& kf)
 {
@@ -176,6 +287,11 @@ SlamMap::addKeyFrame(const KeyFrame::Ptr& kf)
   if (kf->cloud)
     map_cloud = CompactCloud::fromCloud(
         map_cloud_leaf_m_ > 0.0 ? *voxelDownsample(*kf->cloud, map_cloud_leaf_m_) : *kf->cloud);
+  float radius_m = 0.0f;
+  for (const CompactCloud::Point& q : map_cloud.points)
+    radius_m = std::max(radius_m, std::sqrt(float(q.x) * q.x + float(q.y) * q.y + float(q.z) * q.z));
+  radius_m *= static_cast<float>(CompactCloud::kResolutionM);
+  const BlobStore::Handle stored = cloud_store_->putVector(map_cloud.points);
   std::lock_guard<std::mutex> lock(mutex_);
   if (kf->id != keyframes_.size())
     throw std::invalid_argument("SlamMap::addKeyFrame: expected id " +
@@ -187,7 +303,9 @@ SlamMap::addKeyFrame(const KeyFrame::Ptr& kf)
   entry.T_world_keyframe = keyframes_.empty()
                                ? kf->T_world_keyframe
                                : keyframes_.back().T_world_keyframe * kf->T_previous_keyframe;
-  entry.map_cloud = std::move(map_cloud);
+  entry.map_cloud = stored;
+  entry.intensity_scale = map_cloud.intensity_scale;
+  entry.map_cloud_radius_m = radius_m;
   keyframes_.push_back(std::move(entry));
   kf->map_point_ids.assign(kf->features.size(), kNoMapPoint);
   return entry.T_world_keyframe;
@@ -258,8 +376,12 @@ SlamMap::keyFramePoses() const
 pcl::PointCloud<pcl::PointXYZI>::Ptr
 SlamMap::keyFrameCloud(KeyFrameId id) const
 {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return keyframes_.at(id).map_cloud.toCloud();
+  KeyFrameEntry entry;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    entry = keyframes_.at(id);
+  }
+  return loadMapCloud(entry).toCloud();
 }
 
 void
@@ -272,11 +394,34 @@ SlamMap::releaseKeyFrameCloud(KeyFrameId id)
 std::size_t
 SlamMap::mapCloudBytes() const
 {
+  return memoryUsage().map_clouds;
+}
+
+SlamMap::MemoryUsage
+SlamMap::memoryUsage() const
+{
+  MemoryUsage m;
   std::lock_guard<std::mutex> lock(mutex_);
-  std::size_t bytes = 0;
-  for (const auto& e : keyframes_)
-    bytes += e.map_cloud.bytes();
-  return bytes;
+  for (const auto& e : keyframes_) {
+    (cloud_store_->spilled() ? m.map_clouds_on_disk : m.map_clouds) += e.map_cloud.bytes;
+    if (e.kf->cloud)
+      m.keyframe_clouds += e.kf->cloud->points.capacity() * sizeof(pcl::PointXYZI);
+    m.features += e.kf->features.points.points.capacity() * sizeof(RasterFeaturePoint) +
+                  e.kf->features.descriptors.capacity() * sizeof(OrbDescriptor) +
+                  e.kf->map_point_ids.capacity() * sizeof(MapPointId);
+  }
+  // std::map node: the value plus about four pointers of tree bookkeeping.
+  const auto pointBytes = [](const MapPoint& p) {
+    return sizeof(MapPoint) + 32 + p.observations.capacity() * sizeof(MapPointObservation);
+  };
+  for (const auto& [id, p] : map_points_)
+    m.map_points += pointBytes(p);
+  for (const auto& [id, p] : archive_)
+    m.map_points += pointBytes(p);
+  for (const auto& f : frames_)
+    m.frames += sizeof(FrameRecord) + f.status.capacity() + f.skipped_reason.capacity() +
+                f.path.capacity();
+  return m;
 }
 
 std::vector<KeyFrame::Ptr>
@@ -553,34 +698,123 @@ SlamMap::framePoses() const
   return out;
 }
 
+std::vector<SlamMap::KeyFrameEntry>
+SlamMap::mapCloudEntries() const
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<KeyFrameEntry> entries;
+  entries.reserve(keyframes_.size());
+  for (const auto& e : keyframes_) {
+    entries.push_back(e);
+    entries.back().kf.reset(); // only pose, handle and radius are needed
+  }
+  return entries;
+}
+
+void
+SlamMap::forEachMapTile(double leaf_m, const MapTileSink& sink) const
+{
+  if (!(leaf_m > 0.0) || !std::isfinite(leaf_m))
+    throw std::invalid_argument("SlamMap::forEachMapTile: leaf_m must be > 0, got " +
+                                std::to_string(leaf_m));
+  const std::vector<KeyFrameEntry> entries = mapCloudEntries();
+  const auto res = static_cast<float>(CompactCloud::kResolutionM);
+  // Square tiles of whole voxels in the world's x-y plane, each voxelized on its own:
+  // a voxel lies in exactly one tile, so the tiles together equal one global grid.
+  const double inv_leaf = 1.0 / leaf_m;
+  const auto voxels_per_tile =
+      std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(kMapTileSizeM * inv_leaf)));
+  const auto tileOf = [&](double v) {
+    const auto voxel = static_cast<std::int64_t>(std::floor(v * inv_leaf));
+    return voxel >= 0 ? voxel / voxels_per_tile : -((-voxel - 1) / voxels_per_tile) - 1;
+  };
+  // The tiles each key-frame's points can reach (its position +- its cloud's radius).
+  std::map<std::pair<std::int64_t, std::int64_t>, std::vector<std::size_t>> tiles;
+  for (std::size_t k = 0; k < entries.size(); ++k) {
+    const Eigen::Vector3d c = entries[k].T_world_keyframe.translation();
+    const double r = entries[k].map_cloud_radius_m;
+    for (auto tx = tileOf(c.x() - r); tx <= tileOf(c.x() + r); ++tx)
+      for (auto ty = tileOf(c.y() - r); ty <= tileOf(c.y() + r); ++ty)
+        tiles[{tx, ty}].push_back(k);
+  }
+  // Per tile: every point as (voxel key, position, intensity), sorted by key, each run
+  // of one key reduced to its centroid: 24 bytes a point, a few MB per tile.
+  struct Sample
+  {
+    std::uint64_t key;
+    float x, y, z, intensity;
+  };
+  std::vector<Sample> samples;
+  pcl::PointCloud<pcl::PointXYZI> out;
+  for (const auto& [tile, members] : tiles) {
+    samples.clear();
+    for (const std::size_t k : members) {
+      const KeyFrameEntry& e = entries[k];
+      const Eigen::Isometry3d& T = e.T_world_keyframe;
+      for (const CompactCloud::Point& q : loadMapCloud(e).points) {
+        const Eigen::Vector3d p = T * Eigen::Vector3d(q.x * res, q.y * res, q.z * res);
+        if (tileOf(p.x()) != tile.first || tileOf(p.y()) != tile.second)
+          continue;
+        samples.push_back({voxelKey(p, inv_leaf),
+                           static_cast<float>(p.x()),
+                           static_cast<float>(p.y()),
+                           static_cast<float>(p.z()),
+                           q.intensity * e.intensity_scale});
+      }
+    }
+    if (samples.empty())
+      continue;
+    std::sort(samples.begin(), samples.end(), [](const Sample& a, const Sample& b) {
+      return a.key < b.key;
+    });
+    out.clear();
+    for (std::size_t i = 0; i < samples.size();) {
+      double sx = 0.0, sy = 0.0, sz = 0.0, si = 0.0;
+      std::size_t j = i;
+      for (; j < samples.size() && samples[j].key == samples[i].key; ++j) {
+        sx += samples[j].x;
+        sy += samples[j].y;
+        sz += samples[j].z;
+        si += samples[j].intensity;
+      }
+      const double n = static_cast<double>(j - i);
+      pcl::PointXYZI p;
+      p.x = static_cast<float>(sx / n);
+      p.y = static_cast<float>(sy / n);
+      p.z = static_cast<float>(sz / n);
+      p.intensity = static_cast<float>(si / n);
+      out.push_back(p);
+      i = j;
+    }
+    out.width = static_cast<std::uint32_t>(out.size());
+    out.height = 1;
+    out.is_dense = true;
+    sink(out);
+  }
+}
+
 pcl::PointCloud<pcl::PointXYZI>::Ptr
 SlamMap::buildMap(double leaf_m) const
 {
-  // Points are decoded under the lock (the compact clouds are small; no copy of them).
-  std::lock_guard<std::mutex> lock(mutex_);
-  const auto res = static_cast<float>(CompactCloud::kResolutionM);
-  auto forEachPoint = [&](auto&& f) {
-    for (const auto& e : keyframes_) {
-      const Eigen::Isometry3d& T = e.T_world_keyframe;
-      for (const CompactCloud::Point& q : e.map_cloud.points)
-        f(T * Eigen::Vector3d(q.x * res, q.y * res, q.z * res),
-          q.intensity * e.map_cloud.intensity_scale);
-    }
-  };
-  if (leaf_m > 0.0) {
-    VoxelAccumulator acc(leaf_m);
-    forEachPoint([&](const Eigen::Vector3d& p, float i) { acc.add(p, i); });
-    return acc.cloud();
-  }
   auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
-  forEachPoint([&](const Eigen::Vector3d& p, float i) {
-    pcl::PointXYZI q;
-    q.getVector3fMap() = p.cast<float>();
-    q.intensity = i;
-    out->push_back(q);
-  });
+  if (leaf_m > 0.0) {
+    forEachMapTile(leaf_m, [&](const pcl::PointCloud<pcl::PointXYZI>& tile) { *out += tile; });
+  }
+  else {
+    const auto res = static_cast<float>(CompactCloud::kResolutionM);
+    for (const auto& e : mapCloudEntries()) {
+      const Eigen::Isometry3f T = e.T_world_keyframe.cast<float>();
+      for (const CompactCloud::Point& q : loadMapCloud(e).points) {
+        pcl::PointXYZI p;
+        p.getVector3fMap() = T * Eigen::Vector3f(q.x * res, q.y * res, q.z * res);
+        p.intensity = q.intensity * e.intensity_scale;
+        out->push_back(p);
+      }
+    }
+  }
   out->width = static_cast<std::uint32_t>(out->size());
   out->height = 1;
+  out->is_dense = true;
   return out;
 }
 

@@ -2,6 +2,8 @@
 /// found and closing it improves the ATE; deterministic mode is reproducible; the
 /// threaded mode processes every frame; bad use is reported.
 
+#include "test_data.h"
+
 #include <pcl/slam/lidar_simulator.h>
 #include <pcl/slam/rast_slam.h>
 #include <pcl/slam/trajectory_evaluation.h>
@@ -9,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <filesystem>
 #include <iostream>
 #include <memory>
 #include <vector>
@@ -139,6 +142,30 @@ TEST(RastSlam, DeterministicModeIsReproducible)
   EXPECT_EQ(a.stats.map_points_created, b.stats.map_points_created);
   EXPECT_EQ(a.stats.skipped_frames, 1u);
   EXPECT_EQ(a.map_points, b.map_points);
+}
+
+TEST(RastSlam, SpillingToDiskChangesNothingButMemory)
+{
+  const std::filesystem::path dir = pcl_rast_test::makeTempDir("spill");
+  SlamParams params = deterministicParams();
+  const RunResult in_memory = runSlam(params);
+  params.spill_directory = dir.string();
+  const RunResult spilled = runSlam(params);
+  ASSERT_EQ(in_memory.poses.size(), spilled.poses.size());
+  for (std::size_t i = 0; i < spilled.poses.size(); ++i)
+    EXPECT_TRUE(spilled.poses[i].isApprox(in_memory.poses[i], 1e-9)) << "frame " << i;
+  EXPECT_EQ(spilled.stats.loops_accepted, in_memory.stats.loops_accepted);
+  EXPECT_EQ(spilled.map_points, in_memory.map_points);
+  const auto& m = spilled.stats.memory_bytes;
+  EXPECT_EQ(m.at("map_clouds"), 0u);
+  EXPECT_EQ(m.at("loop_dense_targets"), 0u);
+  EXPECT_GT(m.at("map_clouds_on_disk"), 0u);
+  EXPECT_GT(m.at("loop_dense_targets_on_disk"), 0u);
+  EXPECT_EQ(in_memory.stats.memory_bytes.at("map_clouds"), m.at("map_clouds_on_disk"));
+  EXPECT_TRUE(std::filesystem::is_empty(dir)) << "the spill file is anonymous";
+
+  params.spill_directory = (dir / "missing").string();
+  EXPECT_THROW(RastSlam{params}, std::runtime_error);
 }
 
 TEST(RastSlam, ThreadedModeProcessesEveryFrame)

@@ -88,6 +88,7 @@ struct Layout
 struct Scene
 {
   std::vector<Eigen::Vector3f> points; ///< finite map points, sorted by increasing z
+  std::size_t map_points_total = 0;    ///< points of the map shown (subtitle)
   std::vector<cv::Vec3b> point_bgr;    ///< colour of each point
   std::vector<Eigen::Vector3d> trajectory, ground_truth;
   std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> loop_edges;
@@ -159,6 +160,7 @@ Scene
 prepareScene(const MapRenderInput& input, const MapRenderParams& params)
 {
   Scene s;
+  s.map_points_total = input.map_points_total > 0 ? input.map_points_total : input.map->size();
   s.lut_bgr = makeLut(params.colour_map);
   s.layout = makeLayout(params);
   const bool by_height = params.colour_by == MapColourBy::kHeight;
@@ -459,7 +461,7 @@ drawOverlays(cv::Mat& img,
   const double width_m = s.view.plot_px.width * s.view.m_per_px;
   const double height_m = s.view.plot_px.height * s.view.m_per_px;
   std::ostringstream sub;
-  sub << s.points.size() << " map points, " << s.trajectory.size() << " poses, path "
+  sub << s.map_points_total << " map points, " << s.trajectory.size() << " poses, path "
       << formatNumber(s.path_length_m, 1) << " m, " << s.loop_edges.size()
       << (s.loop_edges.size() == 1 ? " loop closure" : " loop closures")
       << " | top-down orthographic view, " << formatNumber(width_m, 0) << " x "

@@ -85,6 +85,9 @@ struct MapRenderInput
 {
   /// The merged map; must not be null (may be empty).
   const pcl::PointCloud<pcl::PointXYZI>* map = nullptr;
+  /// Points of the map the picture stands for, when \a map is a reduced copy of it
+  /// (shown in the subtitle); 0: map->size().
+  std::size_t map_points_total = 0;
   std::vector<Eigen::Vector3d> trajectory;   ///< estimated positions, in order
   std::vector<Eigen::Vector3d> ground_truth; ///< optional reference positions, in order
   /// Accepted loop closures, each as the positions of its two key-frames.

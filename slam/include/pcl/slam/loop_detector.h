@@ -16,6 +16,7 @@
 #include <pcl/registration/hamming_correspondence_estimation.h>
 #include <pcl/registration/point_to_plane_refinement.h>
 #include <pcl/registration/rigid_ransac.h>
+#include <pcl/slam/blob_store.h>
 #include <pcl/slam/keyframe.h>
 #include <pcl/slam/pose_io.h>
 #include <shared_mutex>
@@ -267,8 +268,12 @@ public:
   using Ptr = std::shared_ptr<LoopDetector>;
   using ConstPtr = std::shared_ptr<const LoopDetector>;
 
+  /// \param[in] params detection and verification settings
+  /// \param[in] dense_store where the key-frames' dense-check targets are kept (null:
+  /// in memory); a store spilled to disk keeps the database's memory small.
   /// \throws std::invalid_argument when !params.isValid() (message says why)
-  explicit LoopDetector(const LoopDetectorParams& params = LoopDetectorParams());
+  explicit LoopDetector(const LoopDetectorParams& params = LoopDetectorParams(),
+                        BlobStore::Ptr dense_store = nullptr);
   ~LoopDetector();
 
   const LoopDetectorParams& params() const { return params_; }
@@ -308,6 +313,16 @@ public:
   /// \brief Number of key-frames in the database.
   std::size_t size() const;
 
+  /// \brief Approximate heap bytes of the database (memory reports): the dense-check
+  /// targets and the appearance index (key-frame features are owned by the key-frames).
+  struct MemoryUsage
+  {
+    std::size_t dense_targets = 0;         ///< in memory
+    std::size_t dense_targets_on_disk = 0; ///< spilled to disk
+    std::size_t appearance_index = 0;
+  };
+  MemoryUsage memoryUsage() const;
+
   /// \brief The current pose of a database key-frame.
   /// \throws std::invalid_argument when \a id is unknown
   Pose3d pose(KeyFrameId id) const;
@@ -320,8 +335,8 @@ private:
     KeyFrame::ConstPtr keyframe;
     /// The key-frame's cloud as the dense check's target needs it (voxelized at
     /// dense.target_voxel_size_m, cropped to dense_crop_radius_m), prepared once at
-    /// insertion: the key-frame's own cloud may be released afterwards.
-    std::vector<DensePoint> dense_target;
+    /// insertion: the key-frame's own cloud may be released afterwards. In dense_store_.
+    BlobStore::Handle dense_target;
     Pose3d T_world_keyframe = Pose3d::Identity();
     double travel_m = 0.0;           ///< distance travelled up to this key-frame
     std::uint32_t first_feature = 0; ///< global index of its first indexed feature
@@ -343,6 +358,7 @@ private:
   std::vector<char> eligibleSlots(const KeyFrame& query, double query_travel_m) const;
 
   LoopDetectorParams params_;
+  BlobStore::Ptr dense_store_;
   mutable std::shared_mutex mutex_;
   std::vector<Entry> entries_;
   std::unordered_map<KeyFrameId, std::size_t> slot_of_;

@@ -89,6 +89,11 @@ struct SlamParams
   /// (SlamMap::keyFrameCloud, 8 bytes a point) for buildMap. true: kept (memory grows
   /// by ~32 bytes a point per key-frame).
   bool keep_keyframe_clouds = false;
+  /// Non-empty: the compact key-frame clouds of the map and the loop detector's dense
+  /// targets (about 120 kB per key-frame) are spilled to an anonymous file in this
+  /// folder, which vanishes with the process. Memory then no longer grows with them.
+  /// Empty: kept in memory.
+  std::string spill_directory;
 
   bool isValid(std::string* why = nullptr) const;
 };
@@ -121,6 +126,11 @@ struct SlamStatistics
   /// or a backlog in threaded mode).
   std::size_t loop_searches_skipped = 0;
   std::size_t map_cloud_bytes = 0; ///< compact key-frame clouds kept by the map
+  /// Approximate heap bytes by part: "map_clouds", "keyframe_clouds", "features",
+  /// "map_points", "frames" (the map) and "loop_dense_targets",
+  /// "loop_appearance_index" (the loop database); "map_clouds_on_disk" and
+  /// "loop_dense_targets_on_disk" count what was spilled (SlamParams::spill_directory).
+  std::map<std::string, std::size_t> memory_bytes;
   std::map<std::string, std::size_t> tracking_status; ///< frames per tracking status
   /// Per stage: "tracking" (per frame), "local_mapping" (per key-frame),
   /// "loop_detection" (per searched key-frame, with its "loop_retrieval" and

@@ -7,6 +7,7 @@
 /// \ingroup slam
 
 #include <pcl/features/raster_feature_types.h>
+#include <pcl/slam/blob_store.h>
 #include <pcl/slam/keyframe.h>
 #include <pcl/slam/pose_io.h>
 
@@ -17,6 +18,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -106,7 +108,9 @@ public:
 
   /// \param[in] map_cloud_leaf_m each key-frame's cloud is kept for the merged map
   /// voxel-downsampled to this leaf (<= 0: all its points), quantized (CompactCloud).
-  explicit SlamMap(double map_cloud_leaf_m = 0.0) : map_cloud_leaf_m_(map_cloud_leaf_m) {}
+  /// \param[in] cloud_store where those compact clouds are kept (null: in memory); a
+  /// store spilled to disk keeps the map's memory from growing with the sequence.
+  explicit SlamMap(double map_cloud_leaf_m = 0.0, BlobStore::Ptr cloud_store = nullptr);
   SlamMap(const SlamMap&) = delete;
   SlamMap& operator=(const SlamMap&) = delete;
 
@@ -144,8 +148,20 @@ public:
   /// read KeyFrame::cloud of key-frames from keyFrames() must not run concurrently.
   /// \throws std::out_of_range on an unknown id.
   void releaseKeyFrameCloud(KeyFrameId id);
-  /// \brief Heap bytes of the compact key-frame clouds (memory reports).
+  /// \brief Heap bytes of the compact key-frame clouds (memory reports; 0 when they are
+  /// spilled to disk).
   std::size_t mapCloudBytes() const;
+  /// \brief Approximate heap bytes held, by part (memory reports).
+  struct MemoryUsage
+  {
+    std::size_t map_clouds = 0;      ///< compact key-frame clouds in memory
+    std::size_t map_clouds_on_disk = 0; ///< compact key-frame clouds spilled to disk
+    std::size_t keyframe_clouds = 0; ///< full-precision clouds not yet released
+    std::size_t features = 0;        ///< key-frame features, descriptors, map-point ids
+    std::size_t map_points = 0;      ///< live and archived map points
+    std::size_t frames = 0;          ///< per-frame records
+  };
+  MemoryUsage memoryUsage() const;
   /// \brief The odometry-edge measurement T_previous_keyframe of key-frame \a id
   /// (tracking's value, refined by local BA when enabled).
   Pose3d odometryEdge(KeyFrameId id) const;
@@ -208,7 +224,18 @@ public:
 
   /// \brief Merge all key-frame clouds into the world frame by their corrected poses,
   /// voxel-downsampled with \a leaf_m (<= 0: no downsampling); intensity kept.
+  /// The voxel grid is filled one square tile of the world at a time, so building
+  /// needs little memory beyond the result. Tracking and the other stages go on
+  /// meanwhile (the poses are copied first).
   pcl::PointCloud<pcl::PointXYZI>::Ptr buildMap(double leaf_m) const;
+
+  /// \brief Called with the voxelized points of one world tile (world frame).
+  using MapTileSink = std::function<void(const pcl::PointCloud<pcl::PointXYZI>& tile)>;
+  /// \brief buildMap(leaf_m) without holding the whole map: \a sink receives it one
+  /// square tile of the world at a time (in a fixed order); together the tiles are
+  /// exactly buildMap's points. For writing huge maps (see PcdStreamWriter).
+  /// \throws std::invalid_argument unless leaf_m > 0.
+  void forEachMapTile(double leaf_m, const MapTileSink& sink) const;
 
 private:
   struct KeyFrameEntry
@@ -216,11 +243,17 @@ private:
     KeyFrame::Ptr kf;
     Pose3d T_world_keyframe = Pose3d::Identity();
     Pose3d T_previous_keyframe = Pose3d::Identity(); ///< odometry edge measurement
-    CompactCloud map_cloud; ///< for buildMap
+    /// The compact cloud for buildMap: CompactCloud::points in cloud_store_.
+    BlobStore::Handle map_cloud;
+    float intensity_scale = 0.0f; ///< CompactCloud::intensity_scale
+    float map_cloud_radius_m = 0.0f; ///< largest distance of a point from the sensor
   };
+  CompactCloud loadMapCloud(const KeyFrameEntry& entry) const;
+  std::vector<KeyFrameEntry> mapCloudEntries() const; ///< copies, without key-frames
   void applyPosesLocked(const std::map<KeyFrameId, Pose3d>& poses, bool propagate_to_newer);
 
   double map_cloud_leaf_m_ = 0.0;
+  BlobStore::Ptr cloud_store_;
   mutable std::mutex mutex_;
   std::vector<KeyFrameEntry> keyframes_; // index == id
   std::map<MapPointId, MapPoint> map_points_;
@@ -241,6 +274,42 @@ pcl::PointCloud<pcl::PointXYZI>::Ptr voxelDownsample(const pcl::PointCloud<pcl::
 /// \brief Write \a cloud as binary PCD atomically (temporary file, then rename).
 /// \throws std::runtime_error naming the file on failure.
 void savePcdAtomically(const std::string& path, const pcl::PointCloud<pcl::PointXYZI>& cloud);
+
+/// \brief A binary PCD (x y z intensity) written piece by piece without holding the
+/// whole cloud, atomically: appended points go to an anonymous spill file in the
+/// target's folder; commit() writes the header with the final count and the points to
+/// a temporary file and renames it into place. Nothing appears at the path before
+/// commit(), and nothing at all when the writer is destroyed without it.
+///
+/// \code
+/// pcl::rast::PcdStreamWriter pcd("map.pcd");
+/// slam_map.forEachMapTile(0.2, [&](const auto& tile) { pcd.append(tile); });
+/// pcd.commit();
+/// \endcode
+class PcdStreamWriter
+{
+public:
+  /// \throws std::runtime_error naming the folder when no spill file can be made there.
+  explicit PcdStreamWriter(const std::string& path);
+  PcdStreamWriter(const PcdStreamWriter&) = delete;
+  PcdStreamWriter& operator=(const PcdStreamWriter&) = delete;
+
+  /// \brief Append \a points (non-finite ones included, as PCL would write them).
+  /// \throws std::logic_error after commit(); std::runtime_error on a write error.
+  void append(const pcl::PointCloud<pcl::PointXYZI>& points);
+  /// \brief Points appended so far.
+  std::size_t size() const { return num_points_; }
+  /// \brief Write the file. \throws std::runtime_error naming the file on failure
+  /// (then nothing is left at the path or beside it); std::logic_error when called twice.
+  void commit();
+
+private:
+  std::string path_;
+  BlobStore body_;
+  std::vector<BlobStore::Handle> chunks_;
+  std::size_t num_points_ = 0;
+  bool committed_ = false;
+};
 
 } // namespace rast
 } // namespace pcl
