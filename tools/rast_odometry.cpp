@@ -2,7 +2,7 @@
 /// \brief pcl_rast_odometry: rasterized-ORB LiDAR odometry over a folder of scans.
 ///
 ///   pcl_rast_odometry -input DIR -output DIR [-first N] [-last N] [-stride K]
-///                     [-sensor hdl64|vlp16|os1-64|os0-128] [options]
+///                     [-sensor auto|hdl64|vlp16|os1-64|os0-128] [options]
 ///
 /// Writes DIR/poses_kitti.txt (one line per selected input frame, LiDAR frame, first
 /// pose the identity), DIR/poses_tum.txt (times.txt timestamps when present, else the
@@ -15,6 +15,8 @@
 #include <pcl/slam/sequence_reader.h>
 
 #include "cli.h"
+#include "sensor_choice.h"
+#include "sensor_choice.h"
 
 #include <algorithm>
 #include <cstdio>
@@ -26,26 +28,6 @@
 #include <vector>
 
 namespace {
-
-/// Parameters suited to each simulated / common sensor (doc/odometry.md).
-void
-applySensorPreset(const std::string& sensor, pcl::rast::OdometryParams& params)
-{
-  if (sensor == "os0-128") {
-    // Handheld and tilted (~25 deg): accept a tilted ground and level the cloud so
-    // the raster stays top-down; short range and slow motion: finer map.
-    params.ground.max_tilt_deg = 40.0;
-    params.ground.level_cloud = true;
-    params.dense.source_voxel_size_m = 0.5;
-    params.dense.map_voxel_size_m = 0.5;
-    params.keyframe_voxel_size_m = 0.25;
-    params.keyframe_max_distance_m = 5.0;
-  } else if (sensor == "vlp16") {
-    // 16 beams: sparse raster, fewer corners; accept smaller inlier sets.
-    params.min_feature_inliers = 10;
-    params.keyframe_min_inliers = 25;
-  }
-}
 
 std::string
 fmt(double v, int precision = 3)
@@ -61,7 +43,7 @@ run(int argc, char** argv)
   using namespace pcl_rast_tools;
   namespace rast = pcl::rast;
   rast::OdometryParams params;
-  std::string input, output, sensor = "hdl64";
+  std::string input, output, sensor = "auto";
   int first = 0, last = -1, stride = 1;
   bool no_refine = false, level = params.ground.level_cloud;
   int max_features = params.orb.max_features;
@@ -78,7 +60,8 @@ run(int argc, char** argv)
   args.addInt("first", "first scan (0-based, sorted order)", &first);
   args.addInt("last", "last scan, inclusive (-1: the last one)", &last);
   args.addInt("stride", "use every K-th scan (5 turns 10 Hz into 2 Hz)", &stride);
-  args.addChoice("sensor", "parameter preset", &sensor, {"hdl64", "vlp16", "os1-64", "os0-128"});
+  args.addChoice("sensor", "parameter preset (auto: guessed from the first scan)", &sensor,
+                 sensorChoices());
   args.addSwitch("level", "level the non-ground cloud by the ground normal (tilted sensors)",
                  &level);
   args.addSwitch("no-refine", "feature estimate only (no dense refinement)", &no_refine);
@@ -108,27 +91,30 @@ run(int argc, char** argv)
   // Validate everything before any work.
   if (first < 0 || stride < 1 || last < -1 || (last >= 0 && last < first))
     throw std::invalid_argument("need -first >= 0, -stride >= 1, -last -1 or >= -first");
+  // The flags given win over the sensor preset, which is known only once the input is
+  // listed; they are checked before any work all the same.
   const rast::OdometryParams cli_params = params;
-  applySensorPreset(sensor, params);
-  // Explicit flags win over the preset.
-  if (args.given("keyframe-voxel"))
-    params.keyframe_voxel_size_m = cli_params.keyframe_voxel_size_m;
-  if (args.given("keyframe-max-distance"))
-    params.keyframe_max_distance_m = cli_params.keyframe_max_distance_m;
-  if (args.given("keyframe-min-inliers"))
-    params.keyframe_min_inliers = cli_params.keyframe_min_inliers;
-  if (args.given("min-feature-inliers"))
-    params.min_feature_inliers = cli_params.min_feature_inliers;
-  if (args.given("level"))
-    params.ground.level_cloud = level;
-  params.registration.refine = !no_refine;
-  params.orb.max_features = max_features;
-  params.registration.matching.ratio = ratio;
-  params.min_range_m = min_range;
-  params.max_range_m = max_range;
-  std::string why;
-  if (!params.isValid(&why))
-    throw std::invalid_argument("invalid parameters: " + why);
+  const auto applyFlags = [&](rast::OdometryParams& p) {
+    if (args.given("keyframe-voxel"))
+      p.keyframe_voxel_size_m = cli_params.keyframe_voxel_size_m;
+    if (args.given("keyframe-max-distance"))
+      p.keyframe_max_distance_m = cli_params.keyframe_max_distance_m;
+    if (args.given("keyframe-min-inliers"))
+      p.keyframe_min_inliers = cli_params.keyframe_min_inliers;
+    if (args.given("min-feature-inliers"))
+      p.min_feature_inliers = cli_params.min_feature_inliers;
+    if (args.given("level"))
+      p.ground.level_cloud = level;
+    p.registration.refine = !no_refine;
+    p.orb.max_features = max_features;
+    p.registration.matching.ratio = ratio;
+    p.min_range_m = min_range;
+    p.max_range_m = max_range;
+    std::string why;
+    if (!p.isValid(&why))
+      throw std::invalid_argument("invalid parameters: " + why);
+  };
+  applyFlags(params);
 
   rast::SequenceReaderOptions options;
   options.first = static_cast<std::size_t>(first);
@@ -139,6 +125,13 @@ run(int argc, char** argv)
   std::fprintf(stderr, "Listed %s [%zu of %zu scans%s]\n", reader.scanFolder().c_str(),
                reader.size(), reader.numFiles(),
                reader.timesPath().empty() ? "" : ", times.txt");
+
+  std::string sensor_reason;
+  const rast::SensorPreset preset = resolveSensorPreset(sensor, reader, sensor_reason);
+  std::fprintf(stderr, "Sensor preset %s (%s)\n", rast::toString(preset), sensor_reason.c_str());
+  params = cli_params;
+  rast::applySensorPreset(preset, params);
+  applyFlags(params);
 
   rast::Odometry odometry(params);
   rast::PoseVector poses;

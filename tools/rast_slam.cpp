@@ -11,6 +11,7 @@
 
 #include "cli.h"
 #include "map_render.h"
+#include "sensor_choice.h"
 
 #include <pcl/segmentation/sac_ground_removal.h>
 #include <pcl/slam/lidar_simulator.h>
@@ -314,6 +315,7 @@ run(int argc, char** argv)
   bool global_ba = defaults.loop_closing.global_bundle_adjustment;
   double map_leaf_m = 0.2;
   bool software_render = false, quiet = false;
+  std::string sensor = "auto";
 
   ArgParser parser("pcl_rast_slam",
                    "LiDAR SLAM on rasterized ORB features (tracking, local mapping with optional "
@@ -332,6 +334,8 @@ run(int argc, char** argv)
   parser.addInt("stride", "use every stride-th scan", &stride);
   parser.addChoice("threads", "on: three threads; off: deterministic, one thread", &threads,
                    {"on", "off"});
+  parser.addChoice("sensor", "parameter preset (auto: guessed from the first scan)", &sensor,
+                   pcl_rast_tools::sensorChoices());
   parser.addSwitch("no-loop", "disable loop closure", &no_loop);
   parser.addSwitch("no-ba", "disable local bundle adjustment (the default)", &no_ba);
   parser.addSwitch("ba", "enable local bundle adjustment", &ba);
@@ -386,6 +390,13 @@ run(int argc, char** argv)
             << reader.size() << " selected"
             << (reader.timesPath().empty() ? "" : ", times from " + reader.timesPath())
             << "]\n";
+  std::string sensor_reason;
+  const rast::SensorPreset preset =
+      pcl_rast_tools::resolveSensorPreset(sensor, reader, sensor_reason);
+  std::cerr << "Sensor preset " << rast::toString(preset) << " (" << sensor_reason << ")\n";
+  rast::applySensorPreset(preset, params.odometry);
+  if (!params.isValid(&why))
+    throw std::logic_error("sensor preset made invalid parameters: " + why);
 
   // Ground truth, one pose per selected frame, re-based on the first.
   rast::PoseVector gt;
@@ -560,6 +571,8 @@ run(int argc, char** argv)
   summary["render_backend"] = render.backend;
   summary["render_message"] = render.message;
   summary["params"] = {{"threads", threads},
+                       {"sensor", rast::toString(preset)},
+                       {"sensor_choice", sensor_reason},
                        {"loop_closure", params.loop_closing.enable},
                        {"local_ba", params.local_mapping.enable_bundle_adjustment},
                        {"global_ba", params.loop_closing.global_bundle_adjustment},

@@ -217,6 +217,40 @@ struct OdometryParams
   isValid(std::string* why = nullptr) const;
 };
 
+/// \brief Parameter presets for common sensors and mounts (doc/odometry.md).
+enum class SensorPreset
+{
+  kHdl64,  ///< car-mounted 64-beam Velodyne (KITTI): the defaults
+  kVlp16,  ///< 16 beams: sparser raster, smaller inlier sets accepted
+  kOs1_64, ///< car-mounted 64-beam Ouster: the defaults
+  kOs0_128 ///< wide field of view, handheld or tilted mount: levelled raster, finer maps
+};
+
+/// \brief "hdl64", "vlp16", "os1-64", "os0-128".
+const char* toString(SensorPreset preset);
+/// \brief The preset named \a name (see toString).
+/// \throws std::invalid_argument naming \a name when it is none of them.
+SensorPreset sensorPresetFromName(const std::string& name);
+/// \brief Change \a params as \a preset suggests (other members stay).
+void applySensorPreset(SensorPreset preset, OdometryParams& params);
+
+/// \brief What guessSensorPreset saw in a scan.
+struct SensorGuess
+{
+  SensorPreset preset = SensorPreset::kHdl64;
+  double beam_spacing_deg = 0.0; ///< median elevation gap of vertically adjacent returns
+  double vertical_span_deg = 0.0; ///< elevation range of the returns (1st-99th percentile)
+  double ground_tilt_deg = -1.0;  ///< angle of the ground plane to the x-y plane; -1: none
+  std::string reason;             ///< which rule decided
+};
+
+/// \brief Guess the preset from one scan in the sensor frame: a ground plane tilted by
+/// more than 10 deg, or returns spanning more than 45 deg of elevation, mean a handheld
+/// or wide-angle sensor (kOs0_128); beams more than 1.2 deg apart mean kVlp16; else
+/// kHdl64. Elevation is measured about the sensor's spin axis, so a tilted mount does not
+/// blur the beams.
+SensorGuess guessSensorPreset(const pcl::PointCloud<pcl::PointXYZI>& scan);
+
 /// \brief Frame-to-key-frame LiDAR odometry on rasterized ORB features.
 class Odometry
 {

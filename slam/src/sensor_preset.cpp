@@ -1,0 +1,166 @@
+/// \file sensor_preset.cpp
+/// \brief Odometry parameter presets per sensor, and a guess of the preset from a scan.
+
+#include <pcl/segmentation/sac_ground_removal.h>
+#include <pcl/slam/odometry.h>
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <vector>
+
+namespace pcl {
+namespace rast {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / 3.14159265358979323846;
+/// Above this ground tilt the mount is taken as handheld / tilted [deg].
+constexpr double kTiltedMountDeg = 10.0;
+/// Returns spanning more elevation than this: a wide-angle sensor (OS0: 90 deg) [deg].
+constexpr double kWideSpanDeg = 45.0;
+/// Beam spacing above this: a 16-beam sensor (VLP-16: 2 deg; 64 beams: 0.3-0.7) [deg].
+constexpr double kSparseBeamsDeg = 1.2;
+
+double
+percentile(std::vector<double> values, double q)
+{
+  if (values.empty())
+    return 0.0;
+  const auto k = static_cast<std::size_t>(q * static_cast<double>(values.size() - 1));
+  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
+  return values[k];
+}
+
+} // namespace
+
+const char*
+toString(SensorPreset preset)
+{
+  switch (preset) {
+  case SensorPreset::kHdl64:
+    return "hdl64";
+  case SensorPreset::kVlp16:
+    return "vlp16";
+  case SensorPreset::kOs1_64:
+    return "os1-64";
+  case SensorPreset::kOs0_128:
+    return "os0-128";
+  }
+  return "unknown";
+}
+
+SensorPreset
+sensorPresetFromName(const std::string& name)
+{
+  for (const auto preset : {SensorPreset::kHdl64, SensorPreset::kVlp16, SensorPreset::kOs1_64,
+                            SensorPreset::kOs0_128})
+    if (name == toString(preset))
+      return preset;
+  throw std::invalid_argument("unknown sensor preset '" + name +
+                              "' (hdl64, vlp16, os1-64 or os0-128)");
+}
+
+void
+applySensorPreset(SensorPreset preset, OdometryParams& params)
+{
+  switch (preset) {
+  case SensorPreset::kOs0_128:
+    // Handheld and tilted (~25 deg): accept a tilted ground and level the cloud so the
+    // raster stays top-down; short range and slow motion: finer map.
+    params.ground.max_tilt_deg = 40.0;
+    params.ground.level_cloud = true;
+    params.dense.source_voxel_size_m = 0.5;
+    params.dense.map_voxel_size_m = 0.5;
+    params.keyframe_voxel_size_m = 0.25;
+    params.keyframe_max_distance_m = 5.0;
+    break;
+  case SensorPreset::kVlp16:
+    // 16 beams: sparse raster, fewer corners; accept smaller inlier sets.
+    params.min_feature_inliers = 10;
+    params.keyframe_min_inliers = 25;
+    break;
+  case SensorPreset::kHdl64:
+  case SensorPreset::kOs1_64:
+    break;
+  }
+}
+
+SensorGuess
+guessSensorPreset(const pcl::PointCloud<pcl::PointXYZI>& scan)
+{
+  SensorGuess guess;
+  // Elevation (about the spin axis) and azimuth of returns between 3 and 80 m.
+  struct Ray
+  {
+    double azimuth_deg, elevation_deg;
+  };
+  std::vector<Ray> rays;
+  std::vector<double> elevations;
+  for (const auto& p : scan.points) {
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))
+      continue;
+    const double horizontal = std::hypot(p.x, p.y);
+    const double range = std::hypot(horizontal, static_cast<double>(p.z));
+    if (range < 3.0 || range > 80.0)
+      continue;
+    rays.push_back({std::atan2(p.y, p.x) * kRadToDeg, std::atan2(p.z, horizontal) * kRadToDeg});
+    elevations.push_back(rays.back().elevation_deg);
+  }
+  if (rays.size() < 1000) {
+    guess.reason = "too few returns (" + std::to_string(rays.size()) + ") to tell: defaults";
+    return guess;
+  }
+  guess.vertical_span_deg = percentile(elevations, 0.99) - percentile(elevations, 0.01);
+
+  // Beam spacing: within thin azimuth slices, the elevation gaps between neighbouring
+  // returns; gaps under 0.1 deg are the same beam in adjacent columns.
+  std::sort(rays.begin(), rays.end(), [](const Ray& a, const Ray& b) {
+    return a.azimuth_deg < b.azimuth_deg;
+  });
+  std::vector<double> gaps;
+  constexpr double kSliceDeg = 0.25;
+  for (double start = -180.0; start < 180.0; start += 5.0) { // 72 slices around
+    const auto lo = std::lower_bound(rays.begin(), rays.end(), start,
+                                     [](const Ray& r, double a) { return r.azimuth_deg < a; });
+    std::vector<double> column;
+    for (auto it = lo; it != rays.end() && it->azimuth_deg < start + kSliceDeg; ++it)
+      column.push_back(it->elevation_deg);
+    std::sort(column.begin(), column.end());
+    for (std::size_t i = 1; i < column.size(); ++i)
+      if (column[i] - column[i - 1] > 0.1)
+        gaps.push_back(column[i] - column[i - 1]);
+  }
+  guess.beam_spacing_deg = percentile(gaps, 0.5);
+
+  // Ground tilt: a plane fit allowing up to 60 deg.
+  SACGroundRemovalParams ground;
+  ground.max_tilt_deg = 60.0;
+  SACGroundRemoval removal(ground);
+  removal.setInputCloud(scan.makeShared());
+  GroundRemovalResult result;
+  removal.segment(result);
+  if (result.ground_found)
+    guess.ground_tilt_deg =
+        std::acos(std::min(1.0f, std::abs(result.plane_coefficients.z()))) * kRadToDeg;
+
+  if (guess.ground_tilt_deg > kTiltedMountDeg) {
+    guess.preset = SensorPreset::kOs0_128;
+    guess.reason = "ground tilted " + std::to_string(guess.ground_tilt_deg) + " deg: tilted mount";
+  }
+  else if (guess.vertical_span_deg > kWideSpanDeg) {
+    guess.preset = SensorPreset::kOs0_128;
+    guess.reason = "returns span " + std::to_string(guess.vertical_span_deg) + " deg: wide angle";
+  }
+  else if (guess.beam_spacing_deg > kSparseBeamsDeg) {
+    guess.preset = SensorPreset::kVlp16;
+    guess.reason = "beams " + std::to_string(guess.beam_spacing_deg) + " deg apart: 16 beams";
+  }
+  else {
+    guess.preset = SensorPreset::kHdl64;
+    guess.reason = "level mount, beams " + std::to_string(guess.beam_spacing_deg) + " deg apart";
+  }
+  return guess;
+}
+
+} // namespace rast
+} // namespace pcl

@@ -1,0 +1,98 @@
+/// Sensor presets: names, what they change, and the guess from one scan (simulated
+/// HDL-64, VLP-16, OS1-64 and a tilted handheld OS0-128; a real KITTI scan).
+
+#include "test_data.h"
+
+#include <pcl/slam/lidar_simulator.h>
+#include <pcl/slam/odometry.h>
+#include <pcl/slam/sequence_reader.h>
+
+#include <gtest/gtest.h>
+
+#include <iostream>
+#include <stdexcept>
+#include <string>
+
+namespace {
+
+using namespace pcl::rast;
+
+pcl::PointCloud<pcl::PointXYZI>
+simulatedScan(SensorModel model)
+{
+  PathParams path;
+  path.type = PathType::kLoop;
+  path.num_frames = 10; // the OS0-128 model is handheld: tilted and swaying
+  LidarSimulatorParams params;
+  params.sensor = model;
+  params.seed = 5;
+  params.num_threads = 2;
+  LidarSimulator sim(params, generatePath(path));
+  pcl::PointCloud<pcl::PointXYZI> cloud;
+  sim.simulateFrame(3, cloud);
+  return cloud;
+}
+
+TEST(SensorPreset, NamesRoundTripAndBadNamesAreNamed)
+{
+  for (const auto preset : {SensorPreset::kHdl64, SensorPreset::kVlp16, SensorPreset::kOs1_64,
+                            SensorPreset::kOs0_128})
+    EXPECT_EQ(sensorPresetFromName(toString(preset)), preset);
+  try {
+    sensorPresetFromName("lidar9000");
+    FAIL() << "expected std::invalid_argument";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("lidar9000"), std::string::npos);
+  }
+}
+
+TEST(SensorPreset, PresetsChangeWhatTheySay)
+{
+  OdometryParams defaults, p;
+  applySensorPreset(SensorPreset::kHdl64, p);
+  EXPECT_EQ(p.keyframe_voxel_size_m, defaults.keyframe_voxel_size_m);
+  applySensorPreset(SensorPreset::kOs0_128, p);
+  EXPECT_TRUE(p.ground.level_cloud);
+  EXPECT_GT(p.ground.max_tilt_deg, defaults.ground.max_tilt_deg);
+  EXPECT_TRUE(p.isValid());
+  OdometryParams v;
+  applySensorPreset(SensorPreset::kVlp16, v);
+  EXPECT_LT(v.min_feature_inliers, defaults.min_feature_inliers);
+  EXPECT_TRUE(v.isValid());
+}
+
+TEST(SensorPreset, GuessesTheSimulatedSensors)
+{
+  const struct
+  {
+    SensorModel model;
+    SensorPreset expected;
+  } cases[] = {{SensorModel::kHdl64, SensorPreset::kHdl64},
+               {SensorModel::kVlp16, SensorPreset::kVlp16},
+               {SensorModel::kOs1_64, SensorPreset::kHdl64}, // same settings
+               {SensorModel::kOs0_128, SensorPreset::kOs0_128}};
+  for (const auto& c : cases) {
+    const SensorGuess guess = guessSensorPreset(simulatedScan(c.model));
+    EXPECT_EQ(guess.preset, c.expected)
+        << "simulated model " << static_cast<int>(c.model) << ": " << guess.reason;
+    std::cout << "model " << static_cast<int>(c.model) << ": " << toString(guess.preset)
+              << " (" << guess.reason << "; spacing " << guess.beam_spacing_deg << ", span "
+              << guess.vertical_span_deg << ", tilt " << guess.ground_tilt_deg << ")\n";
+  }
+  // Too little to tell: the defaults, said so.
+  const SensorGuess empty = guessSensorPreset(pcl::PointCloud<pcl::PointXYZI>());
+  EXPECT_EQ(empty.preset, SensorPreset::kHdl64);
+  EXPECT_NE(empty.reason.find("too few"), std::string::npos);
+}
+
+TEST(SensorPreset, GuessesRealKittiAsHdl64)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  SequenceReader reader((data / "kitti-raw-22").string());
+  const SensorGuess guess = guessSensorPreset(*reader.read(0).cloud);
+  EXPECT_EQ(guess.preset, SensorPreset::kHdl64) << guess.reason;
+  std::cout << "kitti-raw-22: " << guess.reason << " (spacing " << guess.beam_spacing_deg
+            << ", span " << guess.vertical_span_deg << ", tilt " << guess.ground_tilt_deg << ")\n";
+}
+
+} // namespace

@@ -1,0 +1,24 @@
+#pragma once
+/// \file sensor_choice.h
+/// \brief The tools' -sensor flag: a named preset, or "auto" (guessed from the first
+/// readable selected scan).
+
+#include <pcl/slam/odometry.h>
+#include <pcl/slam/sequence_reader.h>
+
+#include <string>
+#include <vector>
+
+namespace pcl_rast_tools {
+
+/// \brief Choices of -sensor: "auto" and the preset names.
+std::vector<std::string> sensorChoices();
+
+/// \brief The preset for \a choice: the named one, or for "auto" the guess from the
+/// first scan of \a reader that can be read (defaults when none can). \a reason says
+/// how it was chosen (for the log and summary.json).
+pcl::rast::SensorPreset resolveSensorPreset(const std::string& choice,
+                                            const pcl::rast::SequenceReader& reader,
+                                            std::string& reason);
+
+} // namespace pcl_rast_tools
