@@ -105,6 +105,10 @@ run(int argc, char** argv)
       p.min_feature_inliers = cli_params.min_feature_inliers;
     if (args.given("level"))
       p.ground.level_cloud = level;
+    if (args.given("dense-iterations"))
+      p.dense.max_iterations = cli_params.dense.max_iterations;
+    if (args.given("dense-points"))
+      p.dense.max_source_points = cli_params.dense.max_source_points;
     p.registration.refine = !no_refine;
     p.orb.max_features = max_features;
     p.registration.matching.ratio = ratio;

@@ -92,6 +92,23 @@ constexpr double kDistinctPairsFactor = 1.25;
 /// ... but never below this fraction.
 constexpr double kMinDistinctPairedRatio = 0.2;
 
+/// The motion from \a T_world_last with the features' planar part (x, y, yaw in the
+/// last scan's frame, which top-down raster features measure well) and the prior's
+/// height, roll and pitch (which max-height pixels of few inliers do not).
+Pose3d
+planarFromFeatures(const Pose3d& T_world_last, const Pose3d& T_world_features, const Pose3d& T_world_prior)
+{
+  const Pose3d d_f = T_world_last.inverse() * T_world_features;
+  const Pose3d d_p = T_world_last.inverse() * T_world_prior;
+  const double yaw_f = std::atan2(d_f.rotation()(1, 0), d_f.rotation()(0, 0));
+  const double yaw_p = std::atan2(d_p.rotation()(1, 0), d_p.rotation()(0, 0));
+  Pose3d d = d_p; // the prior, turned to the features' heading and moved to their x, y
+  d.linear() = Eigen::AngleAxisd(yaw_f - yaw_p, Eigen::Vector3d::UnitZ()).toRotationMatrix() * d_p.rotation();
+  d.translation().x() = d_f.translation().x();
+  d.translation().y() = d_f.translation().y();
+  return T_world_last * d;
+}
+
 /// Starts for the dense search when the features fail: the prior, the weak feature
 /// estimates, and the prior's motion from \a T_world_last turned by +-k * yaw_step_deg
 /// (up to max_yaw_deg) about the LiDAR z axis, its translation turned by half that
@@ -572,15 +589,28 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     result.message = "features: " + std::to_string(inliers) + " inliers with " + reference;
     if (params.registration.refine) {
       DenseResult dense = registerToMap(source, map, T_world_features, params.dense);
-      if (!near_prior && inliers < params.strong_feature_inliers) {
-        // Weak features far from the prior: the better dense fit decides.
-        const DenseResult from_prior = registerToMap(source, map, T_world_prior, params.dense);
-        if (from_prior.success && (!dense.success || from_prior.num_correspondences >
-                                                         dense.num_correspondences)) {
-          dense = from_prior;
-          result.status = TrackingStatus::kDenseFallback;
-          result.degraded = true;
-          result.message = "weak features disagree with the prior: dense from the prior";
+      if (inliers < params.strong_feature_inliers) {
+        // Weak features: their height, roll and pitch come from max-height pixels of few
+        // inliers (a 16-beam scan: decimetres off), too far for the dense step's shrinking
+        // kernel. A second dense fit starts from the features' planar motion with the
+        // prior's height, roll and pitch (near the prior, a level mount) or from the prior
+        // itself; the better paired one wins.
+        const Pose3d T_second =
+            near_prior && !params.ground.level_cloud
+                ? planarFromFeatures(T_world_last, T_world_features, T_world_prior)
+                : T_world_prior;
+        const DenseResult second = registerToMap(source, map, T_second, params.dense);
+        if (second.success &&
+            (!dense.success || second.num_correspondences > dense.num_correspondences)) {
+          dense = second;
+          if (!near_prior) {
+            result.status = TrackingStatus::kDenseFallback;
+            result.degraded = true;
+            result.message = "weak features disagree with the prior: dense from the prior";
+          }
+          else {
+            result.message += " (dense from their planar part fitted better)";
+          }
         }
       }
       keepDense(dense);

@@ -549,3 +549,63 @@ TEST(OdometryRealData, KittiRawMotionIsSmooth)
 }
 
 } // namespace
+
+namespace {
+
+/// Mean frame-to-frame translation error of \a results against \a seq [m].
+double
+meanFrameError(const Sequence& seq, const std::vector<rast::OdometryFrameResult>& results)
+{
+  double sum = 0.0;
+  for (std::size_t i = 1; i < results.size(); ++i) {
+    const rast::Pose3d e = (seq.T_world_lidar[i - 1].inverse() * seq.T_world_lidar[i]).inverse() *
+                           (results[i - 1].T_world_lidar.inverse() * results[i].T_world_lidar);
+    sum += e.translation().norm();
+  }
+  return sum / static_cast<double>(results.size() - 1);
+}
+
+} // namespace
+
+/// A VLP-16 along the start of KITTI 07 (simulated, 10 Hz): 16 beams give 10-30 feature
+/// inliers, whose height, roll and pitch are decimetres off; the dense step from there
+/// does not recover them within its iterations. The second dense fit from the features'
+/// planar motion with the prior's height and tilt lowers the frame-to-frame error
+/// (here 1.24 vs 1.52 cm; on the scans pcl_rast_simulate writes for the same 150 frames,
+/// 1.13 vs 1.95 cm; 400 frames, KITTI t_err 0.39 % vs 1.49 %).
+TEST(OdometryRealData, Vlp16WeakFeaturesTakeHeightAndTiltFromThePrior)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  const rast::Trajectory gt = rast::readTrajectory((data / "kitti-gt-poses" / "07.txt").string());
+  ASSERT_GT(gt.poses.size(), 150u);
+  const rast::PoseVector lidar =
+      rast::cameraToLidarPoses(gt.poses, rast::kittiAxisChangeCamLidar());
+  // As pcl_rast_simulate -traj 07.txt -sensor vlp16 makes it (scripts/eval_odometry.sh).
+  const rast::PoseVector path(lidar.begin(), lidar.begin() + 150);
+  rast::LidarSimulatorParams sim_params;
+  sim_params.sensor = rast::SensorModel::kVlp16;
+  sim_params.seed = 1;
+  sim_params.num_threads = 2;
+  rast::LidarSimulator sim(sim_params, path);
+  Sequence seq;
+  const rast::Pose3d T0_inv = sim.sensorPose(0).inverse();
+  for (std::size_t i = 0; i < sim.numFrames(); ++i) {
+    auto cloud = std::make_shared<Cloud>();
+    sim.simulateFrame(i, *cloud);
+    seq.scans.push_back(cloud);
+    seq.T_world_lidar.push_back(T0_inv * sim.sensorPose(i));
+    seq.times.push_back(0.1 * static_cast<double>(i));
+  }
+  rast::OdometryParams params;
+  rast::applySensorPreset(rast::SensorPreset::kVlp16, params);
+  rast::Odometry with_second_fit(params);
+  const double error = meanFrameError(seq, run(with_second_fit, seq));
+  rast::OdometryParams without = params;
+  without.strong_feature_inliers = without.min_feature_inliers; // no frame counts as weak
+  rast::Odometry features_only(without);
+  const double error_without = meanFrameError(seq, run(features_only, seq));
+  std::cout << "[ vlp16 ] mean frame-to-frame error " << 100.0 * error << " cm, without the "
+            << "second fit " << 100.0 * error_without << " cm\n";
+  EXPECT_LT(error, 0.9 * error_without);
+  EXPECT_LT(error, 0.016);
+}
