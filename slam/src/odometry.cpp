@@ -109,6 +109,11 @@ planarFromFeatures(const Pose3d& T_world_last, const Pose3d& T_world_features, c
   return T_world_last * d;
 }
 
+/// Weak features near the prior get the second dense fit only when the prior's step is
+/// at most this long (10 Hz driving: < 1.5 m, < 3 deg; 2 Hz: 4-7 m).
+constexpr double kSecondFitMaxStepM = 2.0;
+constexpr double kSecondFitMaxStepDeg = 5.0;
+
 /// Starts for the dense search when the features fail: the prior, the weak feature
 /// estimates, and the prior's motion from \a T_world_last turned by +-k * yaw_step_deg
 /// (up to max_yaw_deg) about the LiDAR z axis, its translation turned by half that
@@ -589,12 +594,16 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     result.message = "features: " + std::to_string(inliers) + " inliers with " + reference;
     if (params.registration.refine) {
       DenseResult dense = registerToMap(source, map, T_world_features, params.dense);
-      if (inliers < params.strong_feature_inliers) {
+      const Pose3d prior_step = T_world_last.inverse() * T_world_prior;
+      const bool short_step = prior_step.translation().norm() <= kSecondFitMaxStepM &&
+                              angleDeg(prior_step) <= kSecondFitMaxStepDeg;
+      if (inliers < params.strong_feature_inliers && (short_step || !near_prior)) {
         // Weak features: their height, roll and pitch come from max-height pixels of few
         // inliers (a 16-beam scan: decimetres off), too far for the dense step's shrinking
         // kernel. A second dense fit starts from the features' planar motion with the
         // prior's height, roll and pitch (near the prior, a level mount) or from the prior
-        // itself; the better paired one wins.
+        // itself; the better paired one wins. Near the prior only on short steps: at 2 Hz
+        // the prior's tilt is no better than the features' (KITTI 00 at 2 Hz lost a turn).
         const Pose3d T_second =
             near_prior && !params.ground.level_cloud
                 ? planarFromFeatures(T_world_last, T_world_features, T_world_prior)
