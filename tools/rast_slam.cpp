@@ -554,7 +554,7 @@ run(int argc, char** argv)
   summary["loop_candidates"] = stats.loop_candidates;
   summary["pose_graph_runs"] = stats.pose_graph_runs;
   summary["loop_searches_skipped"] = stats.loop_searches_skipped;
-  summary["map_cloud_mb"] = stats.map_cloud_bytes / (1024.0 * 1024.0);
+  summary["map_cloud_mb"] = stats.memory_bytes.at("map_clouds") / (1024.0 * 1024.0);
   for (const auto& [part, bytes] : stats.memory_bytes)
     summary["memory_mb"][part] = bytes / (1024.0 * 1024.0);
   summary["loop_edges"] = loop_json;

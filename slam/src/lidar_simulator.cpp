@@ -7,6 +7,8 @@
 #include <filesystem>
 #include <pcl/io/pcd_io.h>
 #include <pcl/slam/lidar_simulator.h>
+
+#include "simulator_hash.h"
 #include <pcl/slam/sequence_reader.h> // writeKittiBin
 #include <sstream>
 #include <stdexcept>
@@ -25,14 +27,7 @@ deg(double d)
   return d * kPi / 180.0;
 }
 
-std::uint64_t
-splitmix64(std::uint64_t x)
-{
-  x += 0x9E3779B97F4A7C15ULL;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ULL;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBULL;
-  return x ^ (x >> 31);
-}
+using simulator_detail::splitmix64;
 
 /// Counter-based random numbers: the noise of ray k of frame i is a hash of
 /// (seed, i, k) and depends on nothing else. Each 64-bit hash gives two uniforms.

@@ -7,6 +7,8 @@
 #include <cstdint>
 #include <limits>
 #include <pcl/slam/lidar_simulator.h>
+
+#include "simulator_hash.h"
 #include <queue>
 #include <sstream>
 #include <stdexcept>
@@ -21,14 +23,7 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // ---- deterministic hashing and random numbers (portable, no std distributions) ----
 
-std::uint64_t
-splitmix64(std::uint64_t x)
-{
-  x += 0x9E3779B97F4A7C15ULL;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ULL;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBULL;
-  return x ^ (x >> 31);
-}
+using simulator_detail::splitmix64;
 
 std::uint64_t
 hashOf(std::uint64_t a, std::int64_t b, std::int64_t c = 0, std::int64_t d = 0)

@@ -633,7 +633,6 @@ RastSlam::statistics() const
   s.keyframes = map_->numKeyFrames();
   s.map_points = map_->numMapPoints();
   s.map_points_created = map_->numMapPointsCreated();
-  s.map_cloud_bytes = map_->mapCloudBytes();
   const SlamMap::MemoryUsage map_memory = map_->memoryUsage();
   s.memory_bytes["map_clouds"] = map_memory.map_clouds;
   s.memory_bytes["map_clouds_on_disk"] = map_memory.map_clouds_on_disk;

@@ -10,7 +10,6 @@
 #include <set>
 #include <stdexcept>
 #include <unistd.h>
-#include <unordered_map>
 
 namespace pcl {
 namespace rast {
@@ -32,62 +31,43 @@ voxelKey(const Eigen::Vector3d& p, double inv_leaf)
          static_cast<std::uint64_t>(iz & 0x1FFFFF);
 }
 
-/// Voxel accumulator: insertion-ordered cells, hashed by their integer coordinates.
-class VoxelAccumulator
+/// A point ready for voxel averaging: its voxel key, position and intensity (24 bytes).
+struct VoxelSample
 {
-public:
-  explicit VoxelAccumulator(double leaf_m) : inv_leaf_(1.0 / leaf_m) {}
-
-  void add(const Eigen::Vector3d& p, float intensity)
-  {
-    const std::uint64_t key = voxelKey(p, inv_leaf_);
-    auto it = index_.find(key);
-    if (it == index_.end()) {
-      it = index_.emplace(key, cells_.size()).first;
-      cells_.push_back(Cell{});
-    }
-    Cell& c = cells_[it->second];
-    c.sum += p;
-    c.intensity += intensity;
-    ++c.count;
-  }
-
-  pcl::PointCloud<pcl::PointXYZI>::Ptr cloud() const
-  {
-    auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
-    out->reserve(cells_.size());
-    appendTo(*out);
-    out->width = static_cast<std::uint32_t>(out->size());
-    out->height = 1;
-    out->is_dense = true;
-    return out;
-  }
-
-  /// Append one point (centroid, mean intensity) per voxel, in insertion order.
-  void appendTo(pcl::PointCloud<pcl::PointXYZI>& out) const
-  {
-    for (const Cell& c : cells_) {
-      pcl::PointXYZI q;
-      const Eigen::Vector3d m = c.sum / static_cast<double>(c.count);
-      q.x = static_cast<float>(m.x());
-      q.y = static_cast<float>(m.y());
-      q.z = static_cast<float>(m.z());
-      q.intensity = static_cast<float>(c.intensity / c.count);
-      out.push_back(q);
-    }
-  }
-
-private:
-  struct Cell
-  {
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    double intensity = 0.0;
-    std::size_t count = 0;
-  };
-  double inv_leaf_;
-  std::unordered_map<std::uint64_t, std::size_t> index_;
-  std::vector<Cell> cells_;
+  std::uint64_t key;
+  float x, y, z, intensity;
 };
+
+/// Sort \a samples by voxel and append one point per voxel (centroid, mean intensity)
+/// to \a out, in key order: deterministic, and no hash map of cells.
+void
+appendVoxelMeans(std::vector<VoxelSample>& samples, pcl::PointCloud<pcl::PointXYZI>& out)
+{
+  std::sort(samples.begin(), samples.end(), [](const VoxelSample& a, const VoxelSample& b) {
+    return a.key < b.key;
+  });
+  for (std::size_t i = 0; i < samples.size();) {
+    double sx = 0.0, sy = 0.0, sz = 0.0, si = 0.0;
+    std::size_t j = i;
+    for (; j < samples.size() && samples[j].key == samples[i].key; ++j) {
+      sx += samples[j].x;
+      sy += samples[j].y;
+      sz += samples[j].z;
+      si += samples[j].intensity;
+    }
+    const double n = static_cast<double>(j - i);
+    pcl::PointXYZI p;
+    p.x = static_cast<float>(sx / n);
+    p.y = static_cast<float>(sy / n);
+    p.z = static_cast<float>(sz / n);
+    p.intensity = static_cast<float>(si / n);
+    out.push_back(p);
+    i = j;
+  }
+  out.width = static_cast<std::uint32_t>(out.size());
+  out.height = 1;
+  out.is_dense = true;
+}
 
 } // namespace
 
@@ -97,11 +77,16 @@ voxelDownsample(const pcl::PointCloud<pcl::PointXYZI>& cloud, double leaf_m)
   if (!(leaf_m > 0.0) || !std::isfinite(leaf_m))
     throw std::invalid_argument("voxelDownsample: leaf_m must be > 0, got " +
                                 std::to_string(leaf_m));
-  VoxelAccumulator acc(leaf_m);
+  const double inv_leaf = 1.0 / leaf_m;
+  std::vector<VoxelSample> samples;
+  samples.reserve(cloud.size());
   for (const auto& p : cloud.points)
     if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z))
-      acc.add(p.getVector3fMap().cast<double>(), p.intensity);
-  return acc.cloud();
+      samples.push_back({voxelKey(p.getVector3fMap().cast<double>(), inv_leaf), p.x, p.y, p.z,
+                         p.intensity});
+  auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+  appendVoxelMeans(samples, *out);
+  return out;
 }
 
 CompactCloud
@@ -230,38 +215,20 @@ PcdStreamWriter::commit()
   if (num_points_ > static_cast<std::size_t>(std::numeric_limits<int>::max()))
     throw std::runtime_error(path_ + ": " + std::to_string(num_points_) +
                              " points are more than a PCD file can hold");
-  const std::string tmp = path_ + ".tmp." + std::to_string(::getpid());
-  std::FILE* file = std::fopen(tmp.c_str(), "wb");
-  if (!file)
-    throw std::runtime_error(path_ + ": cannot open " + tmp + " for writing");
-  bool ok = true;
   const std::string header =
       pcl::PCDWriter::generateHeader(pcl::PointCloud<pcl::PointXYZI>(),
                                      static_cast<int>(num_points_)) +
       "DATA binary\n";
-  ok = std::fwrite(header.data(), 1, header.size(), file) == header.size();
-  std::string why = "disk full?";
-  std::vector<char> buffer;
-  try {
+  writeFileAtomically(path_, [&](std::FILE* file) {
+    bool ok = std::fwrite(header.data(), 1, header.size(), file) == header.size();
+    std::vector<char> buffer;
     for (std::size_t c = 0; ok && c < chunks_.size(); ++c) {
       buffer.resize(chunks_[c].bytes);
-      body_.get(chunks_[c], buffer.data());
+      body_.get(chunks_[c], buffer.data()); // throws on a read error
       ok = std::fwrite(buffer.data(), 1, buffer.size(), file) == buffer.size();
     }
-  } catch (const std::exception& e) {
-    ok = false;
-    why = e.what();
-  }
-  ok = std::fflush(file) == 0 && ok;
-  ok = std::fclose(file) == 0 && ok;
-  if (!ok) {
-    std::remove(tmp.c_str());
-    throw std::runtime_error(path_ + ": cannot write PCD (" + why + ")");
-  }
-  if (std::rename(tmp.c_str(), path_.c_str()) != 0) {
-    std::remove(tmp.c_str());
-    throw std::runtime_error(path_ + ": cannot rename the temporary PCD into place");
-  }
+    return ok;
+  });
 }
 
 SlamMap::SlamMap(double map_cloud_leaf_m, BlobStore::Ptr cloud_store)
@@ -389,12 +356,6 @@ SlamMap::releaseKeyFrameCloud(KeyFrameId id)
 {
   std::lock_guard<std::mutex> lock(mutex_);
   keyframes_.at(id).kf->cloud.reset();
-}
-
-std::size_t
-SlamMap::mapCloudBytes() const
-{
-  return memoryUsage().map_clouds;
 }
 
 SlamMap::MemoryUsage
@@ -739,12 +700,7 @@ SlamMap::forEachMapTile(double leaf_m, const MapTileSink& sink) const
   }
   // Per tile: every point as (voxel key, position, intensity), sorted by key, each run
   // of one key reduced to its centroid: 24 bytes a point, a few MB per tile.
-  struct Sample
-  {
-    std::uint64_t key;
-    float x, y, z, intensity;
-  };
-  std::vector<Sample> samples;
+  std::vector<VoxelSample> samples;
   pcl::PointCloud<pcl::PointXYZI> out;
   for (const auto& [tile, members] : tiles) {
     samples.clear();
@@ -764,31 +720,8 @@ SlamMap::forEachMapTile(double leaf_m, const MapTileSink& sink) const
     }
     if (samples.empty())
       continue;
-    std::sort(samples.begin(), samples.end(), [](const Sample& a, const Sample& b) {
-      return a.key < b.key;
-    });
     out.clear();
-    for (std::size_t i = 0; i < samples.size();) {
-      double sx = 0.0, sy = 0.0, sz = 0.0, si = 0.0;
-      std::size_t j = i;
-      for (; j < samples.size() && samples[j].key == samples[i].key; ++j) {
-        sx += samples[j].x;
-        sy += samples[j].y;
-        sz += samples[j].z;
-        si += samples[j].intensity;
-      }
-      const double n = static_cast<double>(j - i);
-      pcl::PointXYZI p;
-      p.x = static_cast<float>(sx / n);
-      p.y = static_cast<float>(sy / n);
-      p.z = static_cast<float>(sz / n);
-      p.intensity = static_cast<float>(si / n);
-      out.push_back(p);
-      i = j;
-    }
-    out.width = static_cast<std::uint32_t>(out.size());
-    out.height = 1;
-    out.is_dense = true;
+    appendVoxelMeans(samples, out);
     sink(out);
   }
 }

@@ -5,6 +5,8 @@
 #include <gtest/gtest.h>
 
 #include <cstdlib>
+#include <iterator>
+#include <sys/wait.h>
 #include <filesystem>
 #include <string>
 
@@ -44,6 +46,27 @@ inline std::string
 toolPath(const std::string& name)
 {
   return std::string(PCL_RAST_BINARY_DIR) + "/tools/" + name;
+}
+
+/// \brief Run the built tool \a name with \a args (shell words, quoted by the caller),
+/// its stdout and stderr into \a log. \return its exit code, -1 when it did not exit.
+inline int
+runTool(const std::string& name, const std::string& args, const std::filesystem::path& log)
+{
+  const std::string cmd =
+      "'" + toolPath(name) + "' " + args + " > '" + log.string() + "' 2>&1";
+  const int status = std::system(cmd.c_str());
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+/// \brief Entries of folder \a dir (0 when it is no folder).
+inline std::size_t
+countFiles(const std::filesystem::path& dir)
+{
+  if (!std::filesystem::is_directory(dir))
+    return 0;
+  return static_cast<std::size_t>(
+      std::distance(std::filesystem::directory_iterator(dir), std::filesystem::directory_iterator()));
 }
 
 } // namespace pcl_rast_test

@@ -24,12 +24,7 @@ namespace {
 using namespace pcl::rast;
 namespace fs = std::filesystem;
 
-std::size_t
-filesIn(const fs::path& dir)
-{
-  return static_cast<std::size_t>(
-      std::distance(fs::directory_iterator(dir), fs::directory_iterator()));
-}
+using pcl_rast_test::countFiles;
 
 void
 roundTrip(BlobStore& store)
@@ -66,9 +61,9 @@ TEST(BlobStore, RoundTripsOnDiskAndLeavesNoFileBehind)
     roundTrip(store);
     EXPECT_EQ(store.memoryBytes(), 0u);
     EXPECT_GT(store.fileBytes(), 0u);
-    EXPECT_EQ(filesIn(dir), 0u) << "the spill file must be anonymous";
+    EXPECT_EQ(countFiles(dir), 0u) << "the spill file must be anonymous";
   }
-  EXPECT_EQ(filesIn(dir), 0u);
+  EXPECT_EQ(countFiles(dir), 0u);
 }
 
 TEST(BlobStore, ConcurrentWritersAndReaders)
@@ -210,12 +205,12 @@ TEST(PcdStreamWriter, WritesWhatBuildMapGivesAtomically)
     PcdStreamWriter pcd(path);
     map->forEachMapTile(0.5, [&](const pcl::PointCloud<pcl::PointXYZI>& tile) { pcd.append(tile); });
     EXPECT_FALSE(fs::exists(path)) << "nothing may appear before commit";
-    EXPECT_EQ(filesIn(dir), 0u);
+    EXPECT_EQ(countFiles(dir), 0u);
     pcd.commit();
     EXPECT_THROW(pcd.commit(), std::logic_error);
     EXPECT_THROW(pcd.append(*map->buildMap(0.5)), std::logic_error);
   }
-  EXPECT_EQ(filesIn(dir), 1u) << "no temporary file left beside map.pcd";
+  EXPECT_EQ(countFiles(dir), 1u) << "no temporary file left beside map.pcd";
   pcl::PointCloud<pcl::PointXYZI> loaded;
   ASSERT_EQ(pcl::io::loadPCDFile(path, loaded), 0);
   expectSamePoints(loaded, *map->buildMap(0.5));

@@ -19,12 +19,9 @@ namespace fs = std::filesystem;
 int
 runSimulate(const std::string& args, const fs::path& log)
 {
-  const std::string tool = pcl_rast_test::toolPath("pcl_rast_simulate");
-  if (!fs::exists(tool))
+  if (!fs::exists(pcl_rast_test::toolPath("pcl_rast_simulate")))
     return -100;
-  const std::string cmd = "'" + tool + "' " + args + " > '" + log.string() + "' 2>&1";
-  const int status = std::system(cmd.c_str());
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return pcl_rast_test::runTool("pcl_rast_simulate", args, log);
 }
 
 std::size_t
@@ -37,13 +34,7 @@ countLines(const fs::path& path)
   return n;
 }
 
-std::size_t
-countFiles(const fs::path& dir)
-{
-  if (!fs::is_directory(dir))
-    return 0;
-  return static_cast<std::size_t>(std::distance(fs::directory_iterator(dir), {}));
-}
+using pcl_rast_test::countFiles;
 
 class SimulateTool : public ::testing::Test
 {

@@ -24,10 +24,7 @@ namespace fs = std::filesystem;
 int
 runTool(const std::string& args, const fs::path& log)
 {
-  const std::string tool = pcl_rast_test::toolPath("pcl_rast_slam");
-  const std::string cmd = "'" + tool + "' " + args + " > '" + log.string() + "' 2>&1";
-  const int status = std::system(cmd.c_str());
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return pcl_rast_test::runTool("pcl_rast_slam", args, log);
 }
 
 std::size_t

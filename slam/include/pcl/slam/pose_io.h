@@ -6,6 +6,8 @@
 
 #include <Eigen/Geometry>
 
+#include <cstdio>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -82,6 +84,12 @@ cameraToLidarPoses(const PoseVector& T_cam0_cami, const Pose3d& T_cam_lidar);
 /// \throws std::runtime_error naming the path on failure.
 void
 writeFileAtomically(const std::string& path, const std::string& content);
+
+/// \brief writeFileAtomically for files too large to hold: \a write fills the temporary
+/// file piece by piece and returns false on a write error (it may also throw).
+/// \throws std::runtime_error naming the path on failure; nothing is left behind.
+void
+writeFileAtomically(const std::string& path, const std::function<bool(std::FILE*)>& write);
 
 } // namespace rast
 } // namespace pcl

@@ -125,7 +125,6 @@ struct SlamStatistics
   /// Key-frames added to the loop database without a search (cooldown after a loop,
   /// or a backlog in threaded mode).
   std::size_t loop_searches_skipped = 0;
-  std::size_t map_cloud_bytes = 0; ///< compact key-frame clouds kept by the map
   /// Approximate heap bytes by part: "map_clouds", "keyframe_clouds", "features",
   /// "map_points", "frames" (the map) and "loop_dense_targets",
   /// "loop_appearance_index" (the loop database); "map_clouds_on_disk" and

@@ -91,8 +91,6 @@ struct CompactCloud
   /// \brief The points as a PointXYZI cloud (key-frame frame).
   pcl::PointCloud<pcl::PointXYZI>::Ptr toCloud() const;
   std::size_t size() const { return points.size(); }
-  /// \brief Heap bytes held.
-  std::size_t bytes() const { return points.capacity() * sizeof(Point); }
 };
 
 /// \brief Thread-safe store of the SLAM state (see file comment).
@@ -148,9 +146,6 @@ public:
   /// read KeyFrame::cloud of key-frames from keyFrames() must not run concurrently.
   /// \throws std::out_of_range on an unknown id.
   void releaseKeyFrameCloud(KeyFrameId id);
-  /// \brief Heap bytes of the compact key-frame clouds (memory reports; 0 when they are
-  /// spilled to disk).
-  std::size_t mapCloudBytes() const;
   /// \brief Approximate heap bytes held, by part (memory reports).
   struct MemoryUsage
   {
@@ -265,9 +260,9 @@ private:
   std::uint64_t epoch_ = 0;
 };
 
-/// \brief Voxel-grid downsampling (centroid of xyz and intensity per voxel) with a hash
-/// grid, so the extent of the cloud does not matter (PCL's VoxelGrid overflows its
-/// index on large maps with small leaves). Output order is deterministic.
+/// \brief Voxel-grid downsampling (centroid of xyz and intensity per voxel) on 64-bit
+/// voxel keys, so the extent of the cloud does not matter (PCL's VoxelGrid overflows its
+/// index on large maps with small leaves). Output in voxel-key order (deterministic).
 pcl::PointCloud<pcl::PointXYZI>::Ptr voxelDownsample(const pcl::PointCloud<pcl::PointXYZI>& cloud,
                                                      double leaf_m);
 
