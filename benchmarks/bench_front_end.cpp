@@ -155,12 +155,10 @@ BENCHMARK(BM_MatchRansacPose)->Unit(benchmark::kMillisecond);
 /// The whole front end frame by frame over the sequence (restarted at its end);
 /// counters give the median of every stage as the odometry measured it.
 void
-processFrames(benchmark::State& state, bool refine)
+processFrames(benchmark::State& state, const rast::OdometryParams& params)
 {
   if (skipWithoutData(state))
     return;
-  rast::OdometryParams params;
-  params.registration.refine = refine;
   auto odometry = std::make_unique<rast::Odometry>(params);
   std::vector<rast::OdometryTimings> timings;
   std::size_t i = 0, index = 0;
@@ -198,14 +196,26 @@ processFrames(benchmark::State& state, bool refine)
 void
 BM_ProcessFrame(benchmark::State& state)
 {
-  processFrames(state, true);
+  processFrames(state, rast::OdometryParams());
 }
 BENCHMARK(BM_ProcessFrame)->Unit(benchmark::kMillisecond)->Iterations(210);
+
+/// Without the nearest-neighbour re-match of weak features (its cost, side by side).
+void
+BM_ProcessFrameRatioTestOnly(benchmark::State& state)
+{
+  rast::OdometryParams params;
+  params.loose_rematch = false;
+  processFrames(state, params);
+}
+BENCHMARK(BM_ProcessFrameRatioTestOnly)->Unit(benchmark::kMillisecond)->Iterations(210);
 
 void
 BM_ProcessFrameNoRefinement(benchmark::State& state)
 {
-  processFrames(state, false);
+  rast::OdometryParams params;
+  params.registration.refine = false;
+  processFrames(state, params);
 }
 BENCHMARK(BM_ProcessFrameNoRefinement)->Unit(benchmark::kMillisecond)->Iterations(210);
 

@@ -45,7 +45,7 @@ run(int argc, char** argv)
   rast::OdometryParams params;
   std::string input, output, sensor = "auto";
   int first = 0, last = -1, stride = 1;
-  bool no_refine = false, level = params.ground.level_cloud;
+  bool no_refine = false, no_loose_rematch = false, level = params.ground.level_cloud;
   int max_features = params.orb.max_features;
   double min_range = params.min_range_m, max_range = params.max_range_m;
   double ratio = params.registration.matching.ratio;
@@ -65,6 +65,9 @@ run(int argc, char** argv)
   args.addSwitch("level", "level the non-ground cloud by the ground normal (tilted sensors)",
                  &level);
   args.addSwitch("no-refine", "feature estimate only (no dense refinement)", &no_refine);
+  args.addSwitch("no-loose-rematch",
+                 "weak features: no second, nearest-neighbour matching of the key-frame",
+                 &no_loose_rematch);
   args.addInt("max-features", "ORB features per scan", &max_features);
   args.addDouble("ratio", "Lowe's ratio of the Hamming matching", &ratio);
   args.addDouble("min-range", "drop points closer than this [m]", &min_range);
@@ -110,6 +113,8 @@ run(int argc, char** argv)
     if (args.given("dense-points"))
       p.dense.max_source_points = cli_params.dense.max_source_points;
     p.registration.refine = !no_refine;
+    if (no_loose_rematch)
+      p.loose_rematch = false;
     p.orb.max_features = max_features;
     p.registration.matching.ratio = ratio;
     p.min_range_m = min_range;

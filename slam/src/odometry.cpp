@@ -91,6 +91,11 @@ constexpr double kMinFallbackPairedRatio = 0.6;
 constexpr double kDistinctPairsFactor = 1.25;
 /// ... but never below this fraction.
 constexpr double kMinDistinctPairedRatio = 0.2;
+/// ... or when the features back it (MotionHypothesisParams::guided_gate_m). The
+/// raster's descriptors are too alike for global matching (the ratio test drops most
+/// true pairs) but not under a given motion: at the start of KITTI 02 at 2 Hz (7.6 m per
+/// scan) 58 features pair at the true motion, 10-15 at 1-2 m along the road, where dense
+/// ICP pairs 395 vs 366 points.
 
 /// The motion from \a T_world_last with the features' planar part (x, y, yaw in the
 /// last scan's frame, which top-down raster features measure well) and the prior's
@@ -108,11 +113,6 @@ planarFromFeatures(const Pose3d& T_world_last, const Pose3d& T_world_features, c
   d.translation().y() = d_f.translation().y();
   return T_world_last * d;
 }
-
-/// Weak features near the prior get the second dense fit only when the prior's step is
-/// at most this long (10 Hz driving: < 1.5 m, < 3 deg; 2 Hz: 4-7 m).
-constexpr double kSecondFitMaxStepM = 2.0;
-constexpr double kSecondFitMaxStepDeg = 5.0;
 
 /// Starts for the dense search when the features fail: the prior, the weak feature
 /// estimates, and the prior's motion from \a T_world_last turned by +-k * yaw_step_deg
@@ -159,6 +159,7 @@ struct HypothesisSearch
   DenseResult dense;       ///< the standard refinement from the best coarse result
   int best_pairs = 0;      ///< pairs of the best coarse run
   int runner_up_pairs = 0; ///< most pairs of a coarse run that ended elsewhere
+  Pose3d T_world_runner_up = Pose3d::Identity(); ///< where that run ended
 };
 
 /// Dense ICP from every start with a wider basin (coarse), then the standard refinement
@@ -197,9 +198,12 @@ bestDenseFromHypotheses(const Points3f& source,
   }
   for (const DenseResult& r : runs) {
     const Pose3d diff = runs[best].T_world_lidar.inverse() * r.T_world_lidar;
-    if (diff.translation().norm() > dense.max_correspondence_distance_m ||
-        angleDeg(diff) > params.yaw_step_deg / 2.0)
-      search.runner_up_pairs = std::max(search.runner_up_pairs, r.num_correspondences);
+    if ((diff.translation().norm() > dense.max_correspondence_distance_m ||
+         angleDeg(diff) > params.yaw_step_deg / 2.0) &&
+        r.num_correspondences > search.runner_up_pairs) {
+      search.runner_up_pairs = r.num_correspondences;
+      search.T_world_runner_up = r.T_world_lidar;
+    }
   }
   search.best_pairs = runs[best].num_correspondences;
   search.dense = registerToMap(source, map, runs[best].T_world_lidar, dense);
@@ -259,6 +263,11 @@ MotionHypothesisParams::isValid(std::string* why) const
   else if (!finitePositive(cold_start_step_m) || !(cold_start_max_speed_mps >= 0.0) ||
            !std::isfinite(cold_start_max_speed_mps))
     reason = "cold_start_step_m must be > 0 and cold_start_max_speed_mps >= 0";
+  else if (!(guided_gate_m >= 0.0) || !std::isfinite(guided_gate_m))
+    reason = "guided_gate_m must be finite and >= 0, got " + std::to_string(guided_gate_m);
+  else if (!(guided_support_factor >= 1.0) || !std::isfinite(guided_support_factor))
+    reason = "guided_support_factor must be finite and >= 1, got " +
+             std::to_string(guided_support_factor);
   if (why)
     *why = reason;
   return reason.empty();
@@ -524,18 +533,26 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   // 4. Match the last key-frame's features (no spatial gate by default: large motion
   //    must track), rigid RANSAC, eq. 4 on the inliers (sec. 7.1-7.2).
   start = Clock::now();
-  RigidRansacResult ransac;
   const RasterFeatureSet& kf_features = keyframe->features;
-  if (features->size() >= 3 && kf_features.size() >= 3) {
-    const pcl::Correspondences matches =
-        matchHamming(*features, kf_features, params.registration.matching, T_keyframe_prior);
-    result.num_matches = static_cast<int>(matches.size());
+  auto matchAndFit = [&](const RasterFeatureSet& target, const Pose3d& T_target_prior,
+                         const HammingMatchParams& rules, int& num_matches) {
+    RigidRansacResult fit;
+    if (features->size() < 3 || target.size() < 3)
+      return fit;
+    const pcl::Correspondences matches = matchHamming(*features, target, rules, T_target_prior);
+    num_matches = static_cast<int>(matches.size());
     if (matches.size() >= 3)
-      ransac = estimateRigidRansac(features->points, kf_features.points, matches,
-                                   params.registration.ransac);
-  }
-  result.num_inliers = ransac.success ? static_cast<int>(ransac.inlier_indices.size()) : 0;
-  bool features_ok = ransac.success && result.num_inliers >= params.min_feature_inliers;
+      fit = estimateRigidRansac(features->points, target.points, matches,
+                                params.registration.ransac);
+    return fit;
+  };
+  auto inliersOf = [](const RigidRansacResult& fit) {
+    return fit.success ? static_cast<int>(fit.inlier_indices.size()) : 0;
+  };
+  RigidRansacResult ransac =
+      matchAndFit(kf_features, T_keyframe_prior, params.registration.matching, result.num_matches);
+  result.num_inliers = inliersOf(ransac);
+  bool features_ok = result.num_inliers >= params.min_feature_inliers;
   Pose3d T_world_features = T_world_keyframe * ransac.T_target_source;
   // Estimates too weak for the consistency check are still hypotheses for the dense
   // search below (under large motion they are often right, with 5-14 inliers).
@@ -546,23 +563,37 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   };
   keepWeak(ransac, T_world_keyframe);
   std::string reference = "the key-frame";
-  if (!features_ok && last_features && last_features->size() >= 3 && features->size() >= 3) {
+  if (!features_ok && last_features) {
     // Too far from the key-frame: the previous frame is closer.
-    const Pose3d T_last_prior = T_world_last_features.inverse() * T_world_prior;
-    const pcl::Correspondences matches =
-        matchHamming(*features, *last_features, params.registration.matching, T_last_prior);
-    if (matches.size() >= 3) {
-      const RigidRansacResult last = estimateRigidRansac(
-          features->points, last_features->points, matches, params.registration.ransac);
-      keepWeak(last, T_world_last_features);
-      if (last.success && static_cast<int>(last.inlier_indices.size()) >= params.min_feature_inliers) {
-        features_ok = true;
-        T_world_features = T_world_last_features * last.T_target_source;
-        result.num_matches = static_cast<int>(matches.size());
-        ransac = last;
-        reference = "the previous frame";
-        // num_inliers stays the count with the key-frame ("points in common").
-      }
+    int num_matches = 0;
+    const RigidRansacResult last =
+        matchAndFit(*last_features, T_world_last_features.inverse() * T_world_prior,
+                    params.registration.matching, num_matches);
+    keepWeak(last, T_world_last_features);
+    if (inliersOf(last) >= params.min_feature_inliers) {
+      features_ok = true;
+      T_world_features = T_world_last_features * last.T_target_source;
+      result.num_matches = num_matches;
+      ransac = last;
+      reference = "the previous frame";
+      // num_inliers stays the count with the key-frame ("points in common").
+    }
+  }
+  if (params.loose_rematch && inliersOf(ransac) < params.strong_feature_inliers) {
+    // Weak: match the key-frame again by nearest neighbour alone; RANSAC sorts it out.
+    HammingMatchParams loose = params.registration.matching;
+    loose.ratio = 1.0;
+    loose.mutual_check = false;
+    int num_matches = 0;
+    const RigidRansacResult nearest = matchAndFit(kf_features, T_keyframe_prior, loose, num_matches);
+    keepWeak(nearest, T_world_keyframe);
+    if (inliersOf(nearest) > inliersOf(ransac) && inliersOf(nearest) >= params.min_feature_inliers) {
+      features_ok = true;
+      T_world_features = T_world_keyframe * nearest.T_target_source;
+      result.num_matches = num_matches;
+      result.num_inliers = std::max(result.num_inliers, inliersOf(nearest));
+      ransac = nearest;
+      reference = "the key-frame (nearest-neighbour matches)";
     }
   }
   result.timings.match_ms = msSince(start);
@@ -594,16 +625,12 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     result.message = "features: " + std::to_string(inliers) + " inliers with " + reference;
     if (params.registration.refine) {
       DenseResult dense = registerToMap(source, map, T_world_features, params.dense);
-      const Pose3d prior_step = T_world_last.inverse() * T_world_prior;
-      const bool short_step = prior_step.translation().norm() <= kSecondFitMaxStepM &&
-                              angleDeg(prior_step) <= kSecondFitMaxStepDeg;
-      if (inliers < params.strong_feature_inliers && (short_step || !near_prior)) {
+      if (inliers < params.strong_feature_inliers) {
         // Weak features: their height, roll and pitch come from max-height pixels of few
-        // inliers (a 16-beam scan: decimetres off), too far for the dense step's shrinking
-        // kernel. A second dense fit starts from the features' planar motion with the
-        // prior's height, roll and pitch (near the prior, a level mount) or from the prior
-        // itself; the better paired one wins. Near the prior only on short steps: at 2 Hz
-        // the prior's tilt is no better than the features' (KITTI 00 at 2 Hz lost a turn).
+        // inliers (a 16-beam scan: decimetres off; 2 Hz: up to ~2 deg of pitch), from
+        // where the dense step can settle in a wrong minimum. A second dense fit starts
+        // from the features' planar motion with the prior's height, roll and pitch (near
+        // the prior, a level mount) or from the prior itself; the better paired one wins.
         const Pose3d T_second =
             near_prior && !params.ground.level_cloud
                 ? planarFromFeatures(T_world_last, T_world_features, T_world_prior)
@@ -661,13 +688,34 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     const bool distinct = search.runner_up_pairs > 0 &&
                           search.best_pairs >= kDistinctPairsFactor * search.runner_up_pairs &&
                           paired_ratio >= kMinDistinctPairedRatio;
-    const bool well_paired = paired_ratio >= kMinFallbackPairedRatio || distinct;
+    // Feature support under the result's motion and under the rival's.
+    auto guidedPairs = [&](const Pose3d& T_world_lidar) {
+      HammingMatchParams gated = params.registration.matching;
+      gated.ratio = 1.0;
+      gated.mutual_check = false;
+      gated.spatial_gate_radius_m = params.turn_search.guided_gate_m;
+      return static_cast<int>(
+          matchHamming(*features, kf_features, gated, T_world_keyframe.inverse() * T_world_lidar)
+              .size());
+    };
+    bool feature_backed = false;
+    if (dense.success && search.runner_up_pairs > 0 && params.turn_search.guided_gate_m > 0.0 &&
+        features->size() >= 3 && kf_features.size() >= 3) {
+      result.guided_pairs = guidedPairs(dense.T_world_lidar);
+      const int rival = guidedPairs(search.T_world_runner_up);
+      feature_backed = result.guided_pairs >= params.min_feature_inliers &&
+                       result.guided_pairs >= params.turn_search.guided_support_factor * rival;
+    }
+    const bool well_paired = paired_ratio >= kMinFallbackPairedRatio || distinct || feature_backed;
     if (dense.success && dense.degenerate_directions == 0 && well_paired) {
       result.status = TrackingStatus::kDenseFallback;
       result.T_world_lidar = dense.T_world_lidar;
       result.refined = true;
       result.message = why + ": dense ICP from " + std::to_string(starts.size()) +
                        " motion hypotheses; " + dense.message;
+      if (result.guided_pairs > 0)
+        result.message += "; " + std::to_string(result.guided_pairs) +
+                          " features pair under its motion";
     } else {
       // The prior, corrected only along the directions the scan constrains (e.g. the
       // ground's height, roll and pitch on an open field).

@@ -86,6 +86,15 @@ run(rast::Odometry& odometry, const Sequence& seq)
   return results;
 }
 
+/// The KITTI ground truth of sequence \a seq (../shared/data) as LiDAR poses.
+rast::PoseVector
+kittiLidarPoses(const std::filesystem::path& data, const std::string& seq)
+{
+  const rast::Trajectory gt =
+      rast::readTrajectory((data / "kitti-gt-poses" / (seq + ".txt")).string());
+  return rast::cameraToLidarPoses(gt.poses, rast::kittiAxisChangeCamLidar());
+}
+
 /// The end-point error of the estimate vs ground truth, relative to path length.
 void
 expectSmallDrift(const Sequence& seq,
@@ -138,6 +147,12 @@ TEST(OdometryParams, DefaultsAreValidAndBadValuesAreRejected)
   params = rast::OdometryParams();
   params.turn_search.cold_start_max_speed_mps = -1.0;
   expectInvalid(params, "turn_search.cold_start");
+  params = rast::OdometryParams();
+  params.turn_search.guided_gate_m = -0.5;
+  expectInvalid(params, "turn_search.guided_gate_m");
+  params = rast::OdometryParams();
+  params.turn_search.guided_support_factor = 0.5;
+  expectInvalid(params, "turn_search.guided_support_factor");
 }
 
 TEST(Odometry, StatusNames)
@@ -269,18 +284,68 @@ TEST(Odometry, ColdStartAtHighSpeedWithoutFeatures)
   EXPECT_GE(without_features, 1);
 }
 
+/// The start of KITTI 02 at 2 Hz (every 5th pose, 7.4-7.6 m between scans), simulated
+/// as pcl_rast_simulate makes it: the features fail against a key-frame that far back
+/// (2-5 true pairs among the matches), and dense ICP from the start shifted along the
+/// road finds the right motion, but a start 2 m off ends almost as well paired (the
+/// street is a corridor: 395 vs 366 pairs), so neither the paired ratio nor the
+/// distinct-optimum rule accepts it. The features matched under each motion tell them
+/// apart (58 vs 10-15 within 0.5 m).
+TEST(OdometryRealData, ColdStartDownAStreetIsBackedByGuidedFeatures)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  const rast::PoseVector lidar = kittiLidarPoses(data, "02");
+  ASSERT_GT(lidar.size(), 20u);
+  // The world is made around the whole trajectory, as pcl_rast_simulate -traj makes it.
+  rast::PoseVector path = lidar;
+  for (auto& T : path)
+    T.translation().z() += 1.73; // the simulator's sensor height above its ground
+  rast::LidarSimulatorParams sim_params;
+  sim_params.num_threads = 2;
+  rast::LidarSimulator sim(sim_params, path);
+  Sequence seq;
+  const rast::Pose3d T0_inv = sim.sensorPose(0).inverse();
+  for (std::size_t k = 0; k <= 15; k += 5) {
+    auto cloud = std::make_shared<Cloud>();
+    sim.simulateFrame(k, *cloud);
+    seq.scans.push_back(cloud);
+    seq.T_world_lidar.push_back(T0_inv * sim.sensorPose(k));
+    seq.times.push_back(0.1 * static_cast<double>(k)); // 2 Hz
+  }
+
+  auto firstFrameError = [&seq](const rast::OdometryParams& params, rast::OdometryFrameResult& r) {
+    rast::Odometry odometry(params);
+    const auto results = run(odometry, seq);
+    r = results[1];
+    return (seq.T_world_lidar[1].inverse() * r.T_world_lidar).translation().norm();
+  };
+  rast::OdometryFrameResult backed, unbacked;
+  const double error = firstFrameError(rast::OdometryParams(), backed);
+  rast::OdometryParams no_guidance;
+  no_guidance.turn_search.guided_gate_m = 0.0;
+  const double error_without = firstFrameError(no_guidance, unbacked);
+  std::cout << "[ cold start 7.6 m ] error " << error << " m (" << backed.guided_pairs
+            << " guided pairs), without the guided check " << error_without << " m\n";
+  ASSERT_NE(backed.status, rast::TrackingStatus::kFeatures)
+      << "the features track this start: the test checks nothing";
+  EXPECT_EQ(backed.status, rast::TrackingStatus::kDenseFallback) << backed.message;
+  EXPECT_GE(backed.guided_pairs, rast::OdometryParams().min_feature_inliers);
+  EXPECT_LT(error, 0.3) << backed.message;
+  EXPECT_GT(error_without, 3.0) << unbacked.message;
+}
+
 /// KITTI 00's first turn at 2 Hz (every 5th pose of frames 60-135; in the turn 15-18 deg
-/// and ~4 m between scans), simulated. The ORB features fail in the turn (too few RANSAC
-/// inliers), so the constant-velocity prior is wrong by the turn rate; the dense search
-/// from several motion hypotheses (weak feature estimates, prior +-yaw steps) must
-/// recover every frame. Without it the same sequence drifts, so the test can fail.
+/// and ~4 m between scans), simulated. With the ratio test alone the ORB features fail
+/// in the turn (too few RANSAC inliers), so the constant-velocity prior is wrong by the
+/// turn rate; the dense search from several motion hypotheses (weak feature estimates,
+/// prior +-yaw steps) must recover every frame. Without it the same sequence drifts, so
+/// the test can fail. With the default nearest-neighbour re-match the features track
+/// the whole turn themselves.
 TEST(OdometryRealData, KittiTurnAtTwoHertzRecoversWhenFeaturesFail)
 {
   PCL_RAST_REQUIRE_SHARED_DATA(data);
-  const rast::Trajectory gt = rast::readTrajectory((data / "kitti-gt-poses" / "00.txt").string());
-  ASSERT_GT(gt.poses.size(), 140u);
-  const rast::PoseVector lidar =
-      rast::cameraToLidarPoses(gt.poses, rast::kittiAxisChangeCamLidar());
+  const rast::PoseVector lidar = kittiLidarPoses(data, "00");
+  ASSERT_GT(lidar.size(), 140u);
   // Scans 0 and 1 at 10 Hz give the prior a velocity (a cold start at 4 m per scan is
   // another problem), then every 5th scan.
   std::vector<std::size_t> kitti_index{60, 61};
@@ -306,7 +371,22 @@ TEST(OdometryRealData, KittiTurnAtTwoHertzRecoversWhenFeaturesFail)
     return std::make_pair(worst_m, worst_deg);
   };
 
-  rast::Odometry odometry;
+  // Defaults: the loose re-match finds enough inliers in every frame of the turn.
+  rast::Odometry with_rematch;
+  const auto rematched = run(with_rematch, seq);
+  for (std::size_t i = 1; i < rematched.size(); ++i)
+    EXPECT_EQ(rematched[i].status, rast::TrackingStatus::kFeatures)
+        << "frame " << i << ": " << rematched[i].message;
+  const auto [rematch_m, rematch_deg] = maxFrameError(rematched);
+  std::cout << "[ turn ] nearest-neighbour re-match: worst frame-to-frame error " << rematch_m
+            << " m, " << rematch_deg << " deg\n";
+  EXPECT_LT(rematch_m, 0.1);
+  EXPECT_LT(rematch_deg, 0.5);
+
+  // Ratio-tested matches only: the features fail and the dense search must recover.
+  rast::OdometryParams strict;
+  strict.loose_rematch = false;
+  rast::Odometry odometry(strict);
   const auto results = run(odometry, seq);
   int fallbacks = 0, constant_velocity = 0;
   for (const auto& r : results) {
@@ -326,7 +406,7 @@ TEST(OdometryRealData, KittiTurnAtTwoHertzRecoversWhenFeaturesFail)
   expectSmallDrift(seq, results, 0.5, 1.0);
 
   // The paper's fallback alone (dense ICP from the prior) loses the turn.
-  rast::OdometryParams prior_only;
+  rast::OdometryParams prior_only = strict;
   prior_only.turn_search.enabled = false;
   rast::Odometry baseline(prior_only);
   const auto [baseline_m, baseline_deg] = maxFrameError(run(baseline, seq));
@@ -505,7 +585,10 @@ TEST(OdometryRealData, ScanPairPly)
   std::cout << "[ scan-pair-ply ] " << 100.0 * error.translation().norm() << " cm, "
             << angleDeg(error) << " deg\n";
   EXPECT_LE(error.translation().norm(), 0.05);
-  EXPECT_LE(angleDeg(error), 0.2);
+  // This reference and scan-pair-pcd's (the same scans) disagree by 0.22 deg; the
+  // converged estimate lies 0.22 deg from this one and 0.17 deg from the other
+  // (doc/registration.md), so 0.2 deg to both cannot hold.
+  EXPECT_LE(angleDeg(error), 0.25);
 }
 
 TEST(OdometryRealData, ScanPairPcd)
@@ -520,8 +603,8 @@ TEST(OdometryRealData, ScanPairPcd)
             << angleDeg(error) << " deg\n";
   EXPECT_LE(error.translation().norm(), 0.05);
   // relative.txt and scan-pair-ply's T_target_source.txt (the same scans) disagree by
-  // 0.23 deg, mostly roll (doc/registration.md): 0.2 deg to both cannot hold.
-  EXPECT_LE(angleDeg(error), 0.3);
+  // 0.22 deg, mostly roll (doc/registration.md): 0.2 deg to both cannot hold.
+  EXPECT_LE(angleDeg(error), 0.2);
 }
 
 TEST(OdometryRealData, KittiRawMotionIsSmooth)
@@ -569,17 +652,15 @@ meanFrameError(const Sequence& seq, const std::vector<rast::OdometryFrameResult>
 
 /// A VLP-16 along the start of KITTI 07 (simulated, 10 Hz): 16 beams give 10-30 feature
 /// inliers, whose height, roll and pitch are decimetres off; the dense step from there
-/// does not recover them within its iterations. The second dense fit from the features'
-/// planar motion with the prior's height and tilt lowers the frame-to-frame error
-/// (here 1.24 vs 1.52 cm; on the scans pcl_rast_simulate writes for the same 150 frames,
-/// 1.13 vs 1.95 cm; 400 frames, KITTI t_err 0.39 % vs 1.49 %).
+/// converges slowly from there. The second dense fit from the features' planar motion
+/// with the prior's height and tilt lowers the frame-to-frame error (here 1.37 vs
+/// 1.49 cm with 15 dense iterations; it was 1.24 vs 1.52 cm with 10, when the dense
+/// step stopped before converging more often).
 TEST(OdometryRealData, Vlp16WeakFeaturesTakeHeightAndTiltFromThePrior)
 {
   PCL_RAST_REQUIRE_SHARED_DATA(data);
-  const rast::Trajectory gt = rast::readTrajectory((data / "kitti-gt-poses" / "07.txt").string());
-  ASSERT_GT(gt.poses.size(), 150u);
-  const rast::PoseVector lidar =
-      rast::cameraToLidarPoses(gt.poses, rast::kittiAxisChangeCamLidar());
+  const rast::PoseVector lidar = kittiLidarPoses(data, "07");
+  ASSERT_GT(lidar.size(), 150u);
   // As pcl_rast_simulate -traj 07.txt -sensor vlp16 makes it (scripts/eval_odometry.sh).
   const rast::PoseVector path(lidar.begin(), lidar.begin() + 150);
   rast::LidarSimulatorParams sim_params;
@@ -606,6 +687,6 @@ TEST(OdometryRealData, Vlp16WeakFeaturesTakeHeightAndTiltFromThePrior)
   const double error_without = meanFrameError(seq, run(features_only, seq));
   std::cout << "[ vlp16 ] mean frame-to-frame error " << 100.0 * error << " cm, without the "
             << "second fit " << 100.0 * error_without << " cm\n";
-  EXPECT_LT(error, 0.9 * error_without);
+  EXPECT_LT(error, 0.95 * error_without);
   EXPECT_LT(error, 0.016);
 }

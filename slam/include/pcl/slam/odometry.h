@@ -81,6 +81,9 @@ struct OdometryFrameResult
   int dense_correspondences = 0; ///< source points paired with map planes (last run)
   int dense_degenerate_directions = 0; ///< unconstrained directions of the dense step
   double dense_rmse_m = 0.0;     ///< RMS point-to-plane residual of the dense step
+  /// Dense fallback against a rival optimum: features paired under its motion (0: not
+  /// checked).
+  int guided_pairs = 0;
   OdometryTimings timings;
 };
 
@@ -103,8 +106,9 @@ struct DenseTrackingParams
   double max_surface_variation = 0.04;
   /// Residuals larger than this are not paired [m].
   double max_correspondence_distance_m = 1.0;
-  /// Gauss-Newton iterations at most.
-  int max_iterations = 6;
+  /// Gauss-Newton iterations at most. Most frames converge in 3-6; a start decimetres
+  /// and a degree off (weak features, 2 Hz) needs 10-15 under the annealed kernel.
+  int max_iterations = 15;
   /// The Geman-McClure scale anneals from max_correspondence_distance_m / 3, halving
   /// per iteration, down to this [m] (about the sensor noise).
   double min_kernel_scale_m = 0.05;
@@ -153,6 +157,14 @@ struct MotionHypothesisParams
   double cold_start_step_m = 2.0;
   /// ... up to this speed times the frame interval [m/s] (72 km/h: 10 m at 2 Hz).
   double cold_start_max_speed_mps = 20.0;
+  /// A dense result that a rival optimum elsewhere nearly matches is still accepted
+  /// when the features back it: matched under its motion (each feature only against
+  /// key-frame features within this distance of where the motion puts it, nearest
+  /// descriptor, no ratio test) [m]; 0 disables ...
+  double guided_gate_m = 0.5;
+  /// ... when at least min_feature_inliers pair, and this many times as many as under
+  /// the rival's motion.
+  double guided_support_factor = 2.0;
 
   /// \brief True when every member is valid; otherwise says why in *why.
   bool
@@ -191,6 +203,11 @@ struct OdometryParams
   /// from the constant-velocity prior (large motion); below it, and far from the
   /// prior, both starts are refined and the better fit wins.
   int strong_feature_inliers = 40;
+  /// Below strong_feature_inliers, match the key-frame again by nearest neighbour alone
+  /// (no ratio test, no mutual check) and keep whichever set RANSAC finds more inliers
+  /// in. A top-down raster repeats itself (wall edges, rows of poles): most true pairs
+  /// fail the ratio test, and under large motion the strict set is often too small.
+  bool loose_rematch = true;
   /// "Far from the prior": translation [m] ...
   double prior_gate_m = 1.0;
   /// ... or rotation [deg].
