@@ -233,6 +233,8 @@ LoopDetectorParams::isValid(std::string* why) const
     r << "min_initial_inliers must be >= 3, got " << min_initial_inliers;
   else if (min_inliers < 3)
     r << "min_inliers must be >= 3, got " << min_inliers;
+  else if (!(guess_gate_max_m >= 0.0) || !std::isfinite(guess_gate_max_m))
+    r << "guess_gate_max_m must be finite and >= 0, got " << guess_gate_max_m;
   else if (!positive(guided_radius_m))
     r << "guided_radius_m must be finite and > 0, got " << guided_radius_m;
   else if (!(rotation_bin_deg >= 0.0 && rotation_bin_deg <= 120.0))
@@ -380,8 +382,20 @@ LoopDetector::addKeyFrame(const KeyFrame::ConstPtr& keyframe,
     for (const auto& d : keyframe->features.descriptors) {
       const auto g = static_cast<std::uint32_t>(feature_slot_.size());
       feature_slot_.push_back(slot);
-      for (int t = 0; t < params_.num_hash_tables; ++t)
-        buckets_[substringKey(d, t)].push_back(g);
+      for (int t = 0; t < params_.num_hash_tables; ++t) {
+        Bucket& bucket = buckets_[substringKey(d, t)];
+        if (bucket.saturated)
+          continue;
+        bucket.features.push_back(g);
+        // A bucket past max_bucket_size is never read again (retrieval skips buckets
+        // larger than the cap, and buckets only grow), so its list is dropped. In a
+        // simulated town ~60 % of the postings would land in such buckets.
+        if (params_.max_bucket_size > 0 &&
+            bucket.features.size() > static_cast<std::size_t>(params_.max_bucket_size)) {
+          bucket.saturated = true;
+          bucket.features = std::vector<std::uint32_t>();
+        }
+      }
     }
   }
   slot_of_.emplace(keyframe->id, entries_.size());
@@ -397,10 +411,10 @@ LoopDetector::memoryUsage() const
     (dense_store_->spilled() ? m.dense_targets_on_disk : m.dense_targets) += e.dense_target.bytes;
   m.appearance_index = feature_slot_.capacity() * sizeof(std::uint32_t);
   // unordered_map node (key, vector, next pointer, malloc header) plus its bucket slot.
-  const std::size_t node_bytes = sizeof(std::uint32_t) + sizeof(std::vector<std::uint32_t>) +
-                                 2 * sizeof(void*) + sizeof(void*);
+  const std::size_t node_bytes =
+      sizeof(std::uint32_t) + sizeof(Bucket) + 2 * sizeof(void*) + sizeof(void*);
   for (const auto& [key, bucket] : buckets_)
-    m.appearance_index += node_bytes + bucket.capacity() * sizeof(std::uint32_t);
+    m.appearance_index += node_bytes + bucket.features.capacity() * sizeof(std::uint32_t);
   return m;
 }
 
@@ -461,10 +475,11 @@ LoopDetector::scoreAppearance(const KeyFrame& query,
     for (const auto& q : query.features.descriptors)
       for (int t = 0; t < params_.num_hash_tables; ++t) {
         const auto it = buckets_.find(substringKey(q, t));
-        if (it == buckets_.end() || it->second.size() > max_bucket)
+        if (it == buckets_.end() || it->second.saturated ||
+            it->second.features.size() > max_bucket)
           continue;
-        const double w = std::log(static_cast<double>(total) / it->second.size());
-        for (const std::uint32_t g : it->second)
+        const double w = std::log(static_cast<double>(total) / it->second.features.size());
+        for (const std::uint32_t g : it->second.features)
           if (eligible[feature_slot_[g]])
             votes[feature_slot_[g]] += w;
       }
@@ -495,9 +510,10 @@ LoopDetector::scoreAppearance(const KeyFrame& query,
     found.clear();
     for (int t = 0; t < params_.num_hash_tables; ++t) {
       const auto it = buckets_.find(substringKey(descriptors[i], t));
-      if (it == buckets_.end() || it->second.size() > max_bucket)
+      if (it == buckets_.end() || it->second.saturated ||
+          it->second.features.size() > max_bucket)
         continue;
-      for (const std::uint32_t g : it->second) {
+      for (const std::uint32_t g : it->second.features) {
         if (seen[g] == stamp)
           continue;
         seen[g] = stamp;
@@ -721,28 +737,56 @@ LoopDetector::verifyPair(const KeyFrame& query,
                   std::to_string(candidate.features.size()));
 
   // 1. ORB matching with the ratio test (paper), query -> candidate.
-  const pcl::Correspondences matches =
+  pcl::Correspondences matches =
       matchHamming(query.features, candidate.features, params_.matching);
   v.num_matches = static_cast<int>(matches.size());
-  if (v.num_matches < params_.min_initial_inliers)
-    return reject("too few matches: " + std::to_string(v.num_matches) + " < " +
-                  std::to_string(params_.min_initial_inliers));
-
-  // 2. Seeded RANSAC on them (paper), a first estimate.
   RigidRansacParams ransac_params = params_.ransac;
   ransac_params.min_inliers = params_.min_initial_inliers;
-  const RigidRansacResult ransac = estimateRigidRansac(
-      query.features.points, candidate.features.points, matches, ransac_params);
-  v.num_initial_inliers = static_cast<int>(ransac.inlier_indices.size());
-  v.inlier_ratio = static_cast<double>(v.num_initial_inliers) / v.num_matches;
-  v.T_candidate_query = ransac.T_target_source;
-  if (!ransac.success)
-    return reject("RANSAC: " + ransac.message);
-
-  // 3. Inlier ratio: in a repetitive scene many matches agree with no single motion.
-  if (v.inlier_ratio < params_.min_inlier_ratio)
-    return reject(
-        format("inlier ratio %.2f < %.2f", v.inlier_ratio, params_.min_inlier_ratio));
+  RigidRansacResult ransac;
+  std::string failure;
+  if (v.num_matches < params_.min_initial_inliers) {
+    failure = "too few matches: " + std::to_string(v.num_matches) + " < " +
+              std::to_string(params_.min_initial_inliers);
+  }
+  else {
+    // 2. Seeded RANSAC on them (paper), a first estimate.
+    ransac = estimateRigidRansac(
+        query.features.points, candidate.features.points, matches, ransac_params);
+    v.num_initial_inliers = static_cast<int>(ransac.inlier_indices.size());
+    v.inlier_ratio = static_cast<double>(v.num_initial_inliers) / v.num_matches;
+    v.T_candidate_query = ransac.T_target_source;
+    if (!ransac.success)
+      failure = "RANSAC: " + ransac.message;
+    // 3. Inlier ratio: in a repetitive scene many matches agree with no single motion.
+    else if (v.inlier_ratio < params_.min_inlier_ratio)
+      failure = format("inlier ratio %.2f < %.2f", v.inlier_ratio, params_.min_inlier_ratio);
+  }
+  if (!failure.empty()) {
+    // 1-3 again under the odometry guess (distance candidates): the gate, not the
+    // ratio test, keeps the matches apart; RANSAC sorts out the nearest descriptors.
+    const double gate = std::min(tolerance.translation_m, params_.guess_gate_max_m);
+    if (!(gate > 0.0))
+      return reject(failure);
+    HammingMatchParams gated = params_.matching;
+    gated.ratio = 1.0;
+    gated.mutual_check = false;
+    gated.spatial_gate_radius_m = gate;
+    matches = matchHamming(query.features, candidate.features, gated, T_candidate_query_guess);
+    ransac = matches.size() >= 3 ? estimateRigidRansac(query.features.points,
+                                                        candidate.features.points,
+                                                        matches,
+                                                        ransac_params)
+                                 : RigidRansacResult();
+    if (!ransac.success)
+      return reject(failure + "; under the odometry guess: " +
+                    std::to_string(ransac.inlier_indices.size()) + " RANSAC inliers of " +
+                    std::to_string(matches.size()) + " matches");
+    v.from_guess = true;
+    v.num_matches = static_cast<int>(matches.size());
+    v.num_initial_inliers = static_cast<int>(ransac.inlier_indices.size());
+    v.inlier_ratio = static_cast<double>(v.num_initial_inliers) / v.num_matches;
+    v.T_candidate_query = ransac.T_target_source;
+  }
 
   // 4. Guided matching from the first estimate (the ratio test over the whole scan
   // drops most true matches between distant viewpoints), then RANSAC again with the
@@ -750,6 +794,11 @@ LoopDetector::verifyPair(const KeyFrame& query,
   HammingMatchParams guided_params = params_.matching;
   guided_params.ratio = std::max(guided_params.ratio, 0.9);
   guided_params.spatial_gate_radius_m = params_.guided_radius_m;
+  if (v.from_guess) {
+    // Descriptors that failed the ratio test globally fail it within the gate too.
+    guided_params.ratio = 1.0;
+    guided_params.mutual_check = false;
+  }
   const pcl::Correspondences guided = matchHamming(
       query.features, candidate.features, guided_params, ransac.T_target_source);
   v.num_guided_matches = static_cast<int>(guided.size());

@@ -16,6 +16,9 @@
 #include <pcl/segmentation/sac_ground_removal.h>
 #include <pcl/slam/lidar_simulator.h>
 #include <pcl/slam/loop_detector.h>
+#include <pcl/slam/pose_io.h>
+
+#include "test_data.h"
 #include <random>
 #include <stdexcept>
 
@@ -222,6 +225,11 @@ TEST(LoopDetector, ParamsValidation)
   }
   {
     auto b = p;
+    b.guess_gate_max_m = -1.0;
+    expectInvalid(b, "guess_gate_max_m");
+  }
+  {
+    auto b = p;
     b.search_radius_m = std::nan("");
     expectInvalid(b, "search_radius_m");
   }
@@ -270,6 +278,49 @@ TEST(LoopDetector, ParamsValidation)
     b.max_odometry_deviation_m = -1.0;
     expectInvalid(b, "max_odometry_deviation_m");
   }
+}
+
+/// Buckets past max_bucket_size are never read by retrieval, so they stop growing: a
+/// database of key-frames that all look the same (one descriptor repeated) keeps a
+/// bounded index, and the scores are those of an uncapped index with the same cap.
+TEST(LoopDetector, SaturatedBucketsStopGrowing)
+{
+  auto keyframe = [](KeyFrameId id) {
+    auto kf = std::make_shared<KeyFrame>();
+    kf->id = id;
+    for (int i = 0; i < 50; ++i) {
+      pcl::rast::RasterFeaturePoint p;
+      p.x = static_cast<float>(i);
+      kf->features.points.push_back(p);
+      pcl::rast::OrbDescriptor d{};
+      d.fill(static_cast<std::uint8_t>(i < 40 ? 0xA5 : i)); // 40 alike, 10 distinct
+      kf->features.descriptors.push_back(d);
+    }
+    return kf;
+  };
+  LoopDetectorParams params;
+  params.dense_check = false;
+  LoopDetector capped(params);
+  std::size_t after_10 = 0;
+  for (KeyFrameId id = 0; id < 100; ++id) {
+    capped.addKeyFrame(keyframe(id), yawPose(0.0, {100.0 * id, 0.0, 0.0}));
+    if (id == 9)
+      after_10 = capped.memoryUsage().appearance_index;
+  }
+  // 40 alike descriptors per key-frame fill their 16 buckets past 256 within 7
+  // key-frames; from then on only the buckets of the 10 distinct ones (one entry per
+  // key-frame each) and the feature-to-slot table grow.
+  const std::size_t after_100 = capped.memoryUsage().appearance_index;
+  std::printf("[ index ] after 10 key-frames %zu B, after 100 %zu B\n", after_10, after_100);
+  LoopDetectorParams uncapped_params = params;
+  uncapped_params.max_bucket_size = 0;
+  LoopDetector uncapped(uncapped_params);
+  for (KeyFrameId id = 0; id < 100; ++id)
+    uncapped.addKeyFrame(keyframe(id), yawPose(0.0, {100.0 * id, 0.0, 0.0}));
+  const std::size_t uncapped_bytes = uncapped.memoryUsage().appearance_index;
+  std::printf("[ index ] uncapped after 100 key-frames %zu B\n", uncapped_bytes);
+  EXPECT_LT(after_100, uncapped_bytes / 3);
+  EXPECT_LT(after_100 - after_10, (uncapped_bytes - after_10) / 3);
 }
 
 TEST(LoopDetector, DatabaseBookkeeping)
@@ -382,6 +433,54 @@ TEST(LoopDetector, OppositeDirectionRevisit)
   truth = s.truth(best->candidate, frame);
   EXPECT_LT(translationError(best->T_candidate_query, truth), 0.2);
   EXPECT_LT(rotationErrorDeg(best->T_candidate_query, truth), 1.0);
+}
+
+/// A revisit of KITTI 00 (frame 3824 passes frame 912 again, 0.4 m apart), simulated
+/// as pcl_rast_simulate makes it. The ratio-tested matches fail the inlier-ratio check,
+/// so only the matching under the odometry guess (guess_gate_max_m) finds the loop; it
+/// must be exact although the guess is 2 m off, and without a guess (an appearance
+/// candidate) there is no such second chance.
+TEST(LoopDetectorRealData, DistanceCandidateMatchedUnderTheOdometryGuess)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  const pcl::rast::Trajectory gt =
+      pcl::rast::readTrajectory((data / "kitti-gt-poses" / "00.txt").string());
+  ASSERT_GT(gt.poses.size(), 3824u);
+  PoseVector path = pcl::rast::cameraToLidarPoses(gt.poses, pcl::rast::kittiAxisChangeCamLidar());
+  for (auto& T : path)
+    T.translation().z() += 1.73; // the simulator's sensor height above its ground
+  pcl::rast::LidarSimulatorParams sim_params;
+  sim_params.num_threads = 2;
+  const pcl::rast::LidarSimulator sim(sim_params, path);
+  auto scan = [&sim](std::size_t i) {
+    auto cloud = std::make_shared<Cloud>();
+    sim.simulateFrame(i, *cloud);
+    return cloud;
+  };
+  const auto candidate = makeKeyFrame(1, scan(912));
+  const auto query = makeKeyFrame(500, scan(3824));
+  const Pose3d truth = sim.sensorPose(912).inverse() * sim.sensorPose(3824);
+  Pose3d guess = truth;
+  guess.translation() += Eigen::Vector3d(2.0, 0.0, 0.0);
+
+  const LoopDetector detector{LoopDetectorParams()};
+  const LoopVerification v = detector.verify(*query, *candidate, guess, GuessTolerance{3.0, 10.0});
+  std::printf("[ guess-gated ] accepted %d from_guess %d: %d matches, %d inliers; %s\n",
+              v.accepted, v.from_guess, v.num_matches, v.num_inliers, v.reason.c_str());
+  ASSERT_TRUE(v.accepted) << v.reason;
+  EXPECT_TRUE(v.from_guess) << "the ratio-tested matches pass here: the test checks nothing";
+  EXPECT_LT(translationError(v.T_candidate_query, truth), 0.1);
+  EXPECT_LT(rotationErrorDeg(v.T_candidate_query, truth), 0.5);
+
+  LoopDetectorParams no_gate;
+  no_gate.guess_gate_max_m = 0.0;
+  const LoopVerification without =
+      LoopDetector{no_gate}.verify(*query, *candidate, guess, GuessTolerance{3.0, 10.0});
+  EXPECT_FALSE(without.accepted) << without.reason;
+  const LoopVerification no_guess =
+      detector.verify(*query, *candidate, guess, GuessTolerance{});
+  EXPECT_FALSE(no_guess.accepted) << no_guess.reason;
+  EXPECT_FALSE(no_guess.from_guess);
 }
 
 TEST(LoopDetector, RecentKeyFramesExcluded)

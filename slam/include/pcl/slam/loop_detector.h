@@ -110,6 +110,12 @@ struct LoopDetectorParams
   /// Fewer first-RANSAC inliers / ratio-test matches than this: rejected (many
   /// matches, few consistent: typical of repetitive scenes).
   double min_inlier_ratio = 0.25;
+  /// Distance candidates whose ratio-tested matches fail (a place passed the other way:
+  /// rotated 130-175 deg, the raster's ORB descriptors pair 1-6 true matches) are
+  /// matched again under the odometry guess: each query feature against the candidate
+  /// features within min(odometry tolerance, this) of where the guess puts it, nearest
+  /// descriptor, no ratio test; then the same checks as below. 0 disables [m].
+  double guess_gate_max_m = 4.0;
   /// Guided matching: from the first estimate, every query feature is matched among the
   /// candidate features within this radius (ratio test 0.9, mutual), then RANSAC again.
   double guided_radius_m = 1.0;
@@ -219,6 +225,7 @@ struct LoopVerification
   // added beyond the contract
   int num_initial_inliers = 0;  ///< first RANSAC inliers among num_matches
   int num_guided_matches = 0;   ///< matches of the guided (gated) matching
+  bool from_guess = false;      ///< first estimate from matches gated by the odometry guess
   double inlier_ratio = 0.0;    ///< num_initial_inliers / num_matches
   int inlier_cells = 0;         ///< occupied spread cells
   double inlier_spread_m = 0.0; ///< smaller principal std of the inliers (x-y)
@@ -355,6 +362,7 @@ private:
                                              const LoopDetectorParams& params);
   static PointVector decodeDense(const std::vector<DensePoint>& points);
   double travelTo(const KeyFrame& query, const Pose3d& T_world_query) const;
+
   std::vector<char> eligibleSlots(const KeyFrame& query, double query_travel_m) const;
 
   LoopDetectorParams params_;
@@ -363,8 +371,15 @@ private:
   std::vector<Entry> entries_;
   std::unordered_map<KeyFrameId, std::size_t> slot_of_;
   std::vector<std::uint32_t> feature_slot_; ///< global feature index -> slot
-  /// key (table << 16 | substring) -> global feature indices
-  std::unordered_map<std::uint32_t, std::vector<std::uint32_t>> buckets_;
+  /// Global indices of the features sharing one substring; a bucket that outgrew
+  /// max_bucket_size is only marked (retrieval skips it whatever the database size).
+  struct Bucket
+  {
+    std::vector<std::uint32_t> features;
+    bool saturated = false;
+  };
+  /// key (table << 16 | substring) -> bucket
+  std::unordered_map<std::uint32_t, Bucket> buckets_;
 };
 
 } // namespace rast
