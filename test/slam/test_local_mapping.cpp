@@ -258,8 +258,9 @@ runDrive(bool enable_ba, int num_kfs, std::uint32_t seed)
       kf->T_previous_keyframe = truth[k - 1].inverse() * truth[k] * noisePose(rng, 0.08, 0.004);
     map->addKeyFrame(kf);
     const LocalMappingResult r = mapping.processKeyFrame(kf);
-    if (k > 0)
+    if (k > 0) {
       EXPECT_GT(r.num_matched, 0) << "key-frame " << k;
+    }
     result.total_matched += r.num_matched;
     result.max_live_points = std::max(result.max_live_points, map->numMapPoints());
   }
