@@ -265,6 +265,9 @@ MotionHypothesisParams::isValid(std::string* why) const
     reason = "cold_start_step_m must be > 0 and cold_start_max_speed_mps >= 0";
   else if (!(guided_gate_m >= 0.0) || !std::isfinite(guided_gate_m))
     reason = "guided_gate_m must be finite and >= 0, got " + std::to_string(guided_gate_m);
+  else if (!(guided_refit_gate_m >= 0.0) || !std::isfinite(guided_refit_gate_m))
+    reason = "guided_refit_gate_m must be finite and >= 0, got " +
+             std::to_string(guided_refit_gate_m);
   else if (!(guided_support_factor >= 1.0) || !std::isfinite(guided_support_factor))
     reason = "guided_support_factor must be finite and >= 1, got " +
              std::to_string(guided_support_factor);
@@ -672,12 +675,54 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
                                                         max_travel_m, params.turn_search);
     const HypothesisSearch search =
         bestDenseFromHypotheses(source, map, starts, params.dense, params.turn_search);
-    const DenseResult& dense = search.dense;
-    keepDense(dense);
+    DenseResult dense = search.dense;
     result.degraded = true;
     const std::string why = "feature-consistency check failed (" +
                             std::to_string(result.num_inliers) + " inliers < " +
                             std::to_string(params.min_feature_inliers) + ")";
+    // Features pairing under a motion: each only against the key-frame's features
+    // within the gate of where the motion puts it, nearest descriptor, no ratio test.
+    const bool can_guide = params.turn_search.enabled && params.turn_search.guided_gate_m > 0.0 &&
+                           features->size() >= 3 && kf_features.size() >= 3;
+    auto guidedMatches = [&](const Pose3d& T_world_lidar, double gate_m) {
+      HammingMatchParams gated = params.registration.matching;
+      gated.ratio = 1.0;
+      gated.mutual_check = false;
+      gated.spatial_gate_radius_m = gate_m;
+      return matchHamming(*features, kf_features, gated, T_world_keyframe.inverse() * T_world_lidar);
+    };
+    auto guidedPairs = [&](const Pose3d& T_world_lidar) {
+      return static_cast<int>(guidedMatches(T_world_lidar, params.turn_search.guided_gate_m).size());
+    };
+    // Re-fit: dense ICP can settle a degree or two off in yaw where the scan is weak in
+    // structure (a hillside's scan rings). The features matched under its result (a
+    // wider gate) and RANSAC give x, y and yaw; dense ICP from there (height, roll and
+    // pitch of the first result) wins when more features pair under it.
+    std::string refit;
+    if (dense.success && can_guide && params.turn_search.guided_refit_gate_m > 0.0) {
+      const pcl::Correspondences matches =
+          guidedMatches(dense.T_world_lidar, params.turn_search.guided_refit_gate_m);
+      const RigidRansacResult fit =
+          matches.size() >= 3 ? estimateRigidRansac(features->points, kf_features.points,
+                                                    matches, params.registration.ransac)
+                              : RigidRansacResult();
+      if (inliersOf(fit) >= params.min_feature_inliers) {
+        const DenseResult again = registerToMap(
+            source, map,
+            planarFromFeatures(T_world_last, T_world_keyframe * fit.T_target_source,
+                               dense.T_world_lidar),
+            params.dense);
+        const int before = guidedPairs(dense.T_world_lidar);
+        const int after = again.success ? guidedPairs(again.T_world_lidar) : 0;
+        if (after > before) {
+          dense = again;
+          refit = "; re-fitted from " + std::to_string(inliersOf(fit)) +
+                  " features matched under it (" + std::to_string(before) + " -> " +
+                  std::to_string(after) + " pairing)";
+        }
+      }
+    }
+    keepDense(dense);
     // Dense ICP alone from a wrong start can settle on the ground plane with the wrong
     // yaw; accept it only when most of the scan pairs with the map, or when fewer do
     // but no other hypothesis comes close (a distinct optimum).
@@ -688,19 +733,9 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     const bool distinct = search.runner_up_pairs > 0 &&
                           search.best_pairs >= kDistinctPairsFactor * search.runner_up_pairs &&
                           paired_ratio >= kMinDistinctPairedRatio;
-    // Feature support under the result's motion and under the rival's.
-    auto guidedPairs = [&](const Pose3d& T_world_lidar) {
-      HammingMatchParams gated = params.registration.matching;
-      gated.ratio = 1.0;
-      gated.mutual_check = false;
-      gated.spatial_gate_radius_m = params.turn_search.guided_gate_m;
-      return static_cast<int>(
-          matchHamming(*features, kf_features, gated, T_world_keyframe.inverse() * T_world_lidar)
-              .size());
-    };
+    // ... or when the features back it against that rival.
     bool feature_backed = false;
-    if (dense.success && search.runner_up_pairs > 0 && params.turn_search.guided_gate_m > 0.0 &&
-        features->size() >= 3 && kf_features.size() >= 3) {
+    if (dense.success && search.runner_up_pairs > 0 && can_guide) {
       result.guided_pairs = guidedPairs(dense.T_world_lidar);
       const int rival = guidedPairs(search.T_world_runner_up);
       feature_backed = result.guided_pairs >= params.min_feature_inliers &&
@@ -712,7 +747,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
       result.T_world_lidar = dense.T_world_lidar;
       result.refined = true;
       result.message = why + ": dense ICP from " + std::to_string(starts.size()) +
-                       " motion hypotheses; " + dense.message;
+                       " motion hypotheses; " + dense.message + refit;
       if (result.guided_pairs > 0)
         result.message += "; " + std::to_string(result.guided_pairs) +
                           " features pair under its motion";

@@ -165,6 +165,10 @@ struct MotionHypothesisParams
   /// ... when at least min_feature_inliers pair, and this many times as many as under
   /// the rival's motion.
   double guided_support_factor = 2.0;
+  /// A dense fallback result is re-fitted: features matched under it within this gate
+  /// [m], RANSAC, dense ICP from their x, y and yaw; the result under which more
+  /// features pair (guided_gate_m) is kept. 0 disables.
+  double guided_refit_gate_m = 1.0;
 
   /// \brief True when every member is valid; otherwise says why in *why.
   bool
