@@ -704,11 +704,12 @@ meanFrameError(const Sequence& seq, const std::vector<rast::OdometryFrameResult>
 } // namespace
 
 /// A VLP-16 along the start of KITTI 07 (simulated, 10 Hz): 16 beams give 10-30 feature
-/// inliers, whose height, roll and pitch are decimetres off; the dense step from there
-/// converges slowly from there. The second dense fit from the features' planar motion
-/// with the prior's height and tilt lowers the frame-to-frame error (here 1.37 vs
-/// 1.49 cm with 15 dense iterations; it was 1.24 vs 1.52 cm with 10, when the dense
-/// step stopped before converging more often).
+/// inliers, whose height, roll and pitch are decimetres off, and the dense step from
+/// there can settle in a tilted minimum. The second dense fit from the features' planar
+/// motion with the prior's height and tilt lowers the drift: here the end-point error
+/// after 150 frames is 1.51 vs 1.72 m (400 frames, KITTI t_err 0.17 vs 0.28 %; on 08
+/// 0.62 vs 1.49 %). Frame to frame it is no better since the VLP-16 preset uses 2 m map
+/// voxels (1.19 vs 1.04 cm mean; with 1 m voxels it was 1.37 vs 1.49 cm).
 TEST(OdometryRealData, Vlp16WeakFeaturesTakeHeightAndTiltFromThePrior)
 {
   PCL_RAST_REQUIRE_SHARED_DATA(data);
@@ -732,14 +733,20 @@ TEST(OdometryRealData, Vlp16WeakFeaturesTakeHeightAndTiltFromThePrior)
   }
   rast::OdometryParams params;
   rast::applySensorPreset(rast::SensorPreset::kVlp16, params);
-  rast::Odometry with_second_fit(params);
-  const double error = meanFrameError(seq, run(with_second_fit, seq));
   rast::OdometryParams without = params;
   without.strong_feature_inliers = without.min_feature_inliers; // no frame counts as weak
-  rast::Odometry features_only(without);
-  const double error_without = meanFrameError(seq, run(features_only, seq));
-  std::cout << "[ vlp16 ] mean frame-to-frame error " << 100.0 * error << " cm, without the "
-            << "second fit " << 100.0 * error_without << " cm\n";
-  EXPECT_LT(error, 0.95 * error_without);
-  EXPECT_LT(error, 0.016);
+  auto endError = [&seq](const rast::OdometryParams& p, double& mean_frame_error) {
+    rast::Odometry odometry(p);
+    const auto results = run(odometry, seq);
+    mean_frame_error = meanFrameError(seq, results);
+    return (seq.T_world_lidar.back().inverse() * results.back().T_world_lidar).translation().norm();
+  };
+  double frame_error = 0.0, frame_error_without = 0.0;
+  const double drift = endError(params, frame_error);
+  const double drift_without = endError(without, frame_error_without);
+  std::cout << "[ vlp16 ] end-point error " << drift << " m, without the second fit "
+            << drift_without << " m; mean frame-to-frame error " << 100.0 * frame_error
+            << " cm, without " << 100.0 * frame_error_without << " cm\n";
+  EXPECT_LT(drift, 0.95 * drift_without);
+  EXPECT_LT(frame_error, 0.016);
 }
