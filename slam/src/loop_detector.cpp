@@ -235,6 +235,8 @@ LoopDetectorParams::isValid(std::string* why) const
     r << "min_inliers must be >= 3, got " << min_inliers;
   else if (!(guess_gate_max_m >= 0.0) || !std::isfinite(guess_gate_max_m))
     r << "guess_gate_max_m must be finite and >= 0, got " << guess_gate_max_m;
+  else if (min_guess_inliers < 3)
+    r << "min_guess_inliers must be >= 3, got " << min_guess_inliers;
   else if (!positive(guided_radius_m))
     r << "guided_radius_m must be finite and > 0, got " << guided_radius_m;
   else if (!(rotation_bin_deg >= 0.0 && rotation_bin_deg <= 120.0))
@@ -803,18 +805,19 @@ LoopDetector::verifyPair(const KeyFrame& query,
       query.features, candidate.features, guided_params, ransac.T_target_source);
   v.num_guided_matches = static_cast<int>(guided.size());
   RigidRansacParams final_params = params_.ransac;
-  final_params.min_inliers = min_inliers;
+  const int needed = v.from_guess ? params_.min_guess_inliers : min_inliers;
+  final_params.min_inliers = needed;
   const RigidRansacResult refined_ransac =
-      static_cast<int>(guided.size()) >= min_inliers
+      static_cast<int>(guided.size()) >= needed
           ? estimateRigidRansac(
                 query.features.points, candidate.features.points, guided, final_params)
           : RigidRansacResult();
   v.num_inliers = static_cast<int>(refined_ransac.inlier_indices.size());
   v.inlier_rmse_m = refined_ransac.inlier_rmse_m;
-  if (!refined_ransac.success || v.num_inliers < min_inliers)
+  if (!refined_ransac.success || v.num_inliers < needed)
     return reject("guided matching: " + std::to_string(v.num_inliers) + " inliers of " +
                   std::to_string(v.num_guided_matches) + " matches < " +
-                  std::to_string(min_inliers));
+                  std::to_string(needed));
   v.T_candidate_query = refined_ransac.T_target_source;
 
   // 5. Spatial spread: not all on one object.

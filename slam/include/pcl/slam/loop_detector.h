@@ -116,6 +116,11 @@ struct LoopDetectorParams
   /// features within min(odometry tolerance, this) of where the guess puts it, nearest
   /// descriptor, no ratio test; then the same checks as below. 0 disables [m].
   double guess_gate_max_m = 4.0;
+  /// Final (guided) RANSAC inliers needed on that path, instead of min_inliers: a place
+  /// passed the other way pairs 21-36 features even under the true motion (KITTI 00,
+  /// simulated), and the odometry guess, the gate and the dense check below already
+  /// rule out the look-alikes the paper's 40 guard against.
+  int min_guess_inliers = 20;
   /// Guided matching: from the first estimate, every query feature is matched among the
   /// candidate features within this radius (ratio test 0.9, mutual), then RANSAC again.
   double guided_radius_m = 1.0;
