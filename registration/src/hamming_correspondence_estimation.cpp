@@ -93,7 +93,8 @@ pcl::Correspondences
 matchHamming(const RasterFeatureSet& source,
              const RasterFeatureSet& target,
              const HammingMatchParams& params,
-             const Eigen::Isometry3d& T_target_source_guess)
+             const Eigen::Isometry3d& T_target_source_guess,
+             pcl::Correspondences* nearest)
 {
   std::string why;
   if (!params.isValid(&why))
@@ -142,10 +143,14 @@ matchHamming(const RasterFeatureSet& source,
   }
 
   pcl::Correspondences correspondences;
+  if (nearest)
+    nearest->clear();
   for (std::size_t i = 0; i < n_source; ++i) {
     const int j = best_target[i];
     if (j < 0 || best_distance[i] > params.max_hamming_distance)
       continue;
+    if (nearest)
+      nearest->emplace_back(static_cast<int>(i), j, static_cast<float>(best_distance[i]));
     if (params.ratio < 1.0 && second_distance[i] != kNone &&
         !(best_distance[i] < params.ratio * second_distance[i]))
       continue;

@@ -537,23 +537,22 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   //    must track), rigid RANSAC, eq. 4 on the inliers (sec. 7.1-7.2).
   start = Clock::now();
   const RasterFeatureSet& kf_features = keyframe->features;
-  auto matchAndFit = [&](const RasterFeatureSet& target, const Pose3d& T_target_prior,
-                         const HammingMatchParams& rules, int& num_matches) {
-    RigidRansacResult fit;
-    if (features->size() < 3 || target.size() < 3)
-      return fit;
-    const pcl::Correspondences matches = matchHamming(*features, target, rules, T_target_prior);
-    num_matches = static_cast<int>(matches.size());
-    if (matches.size() >= 3)
-      fit = estimateRigidRansac(features->points, target.points, matches,
-                                params.registration.ransac);
-    return fit;
+  auto fit = [&](const RasterFeatureSet& target, const pcl::Correspondences& matches) {
+    return matches.size() >= 3 ? estimateRigidRansac(features->points, target.points, matches,
+                                                     params.registration.ransac)
+                               : RigidRansacResult();
   };
   auto inliersOf = [](const RigidRansacResult& fit) {
     return fit.success ? static_cast<int>(fit.inlier_indices.size()) : 0;
   };
-  RigidRansacResult ransac =
-      matchAndFit(kf_features, T_keyframe_prior, params.registration.matching, result.num_matches);
+  // One distance pass gives the ratio-tested matches and, for the re-match below, every
+  // feature's nearest neighbour.
+  pcl::Correspondences kf_matches, kf_nearest;
+  if (features->size() >= 3 && kf_features.size() >= 3)
+    kf_matches = matchHamming(*features, kf_features, params.registration.matching,
+                              T_keyframe_prior, &kf_nearest);
+  result.num_matches = static_cast<int>(kf_matches.size());
+  RigidRansacResult ransac = fit(kf_features, kf_matches);
   result.num_inliers = inliersOf(ransac);
   bool features_ok = result.num_inliers >= params.min_feature_inliers;
   Pose3d T_world_features = T_world_keyframe * ransac.T_target_source;
@@ -566,34 +565,30 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   };
   keepWeak(ransac, T_world_keyframe);
   std::string reference = "the key-frame";
-  if (!features_ok && last_features) {
+  if (!features_ok && last_features && features->size() >= 3 && last_features->size() >= 3) {
     // Too far from the key-frame: the previous frame is closer.
-    int num_matches = 0;
-    const RigidRansacResult last =
-        matchAndFit(*last_features, T_world_last_features.inverse() * T_world_prior,
-                    params.registration.matching, num_matches);
+    const pcl::Correspondences matches =
+        matchHamming(*features, *last_features, params.registration.matching,
+                     T_world_last_features.inverse() * T_world_prior);
+    const RigidRansacResult last = fit(*last_features, matches);
     keepWeak(last, T_world_last_features);
     if (inliersOf(last) >= params.min_feature_inliers) {
       features_ok = true;
       T_world_features = T_world_last_features * last.T_target_source;
-      result.num_matches = num_matches;
+      result.num_matches = static_cast<int>(matches.size());
       ransac = last;
       reference = "the previous frame";
       // num_inliers stays the count with the key-frame ("points in common").
     }
   }
   if (params.loose_rematch && inliersOf(ransac) < params.strong_feature_inliers) {
-    // Weak: match the key-frame again by nearest neighbour alone; RANSAC sorts it out.
-    HammingMatchParams loose = params.registration.matching;
-    loose.ratio = 1.0;
-    loose.mutual_check = false;
-    int num_matches = 0;
-    const RigidRansacResult nearest = matchAndFit(kf_features, T_keyframe_prior, loose, num_matches);
+    // Weak: the key-frame's nearest-neighbour matches alone; RANSAC sorts them out.
+    const RigidRansacResult nearest = fit(kf_features, kf_nearest);
     keepWeak(nearest, T_world_keyframe);
     if (inliersOf(nearest) > inliersOf(ransac) && inliersOf(nearest) >= params.min_feature_inliers) {
       features_ok = true;
       T_world_features = T_world_keyframe * nearest.T_target_source;
-      result.num_matches = num_matches;
+      result.num_matches = static_cast<int>(kf_nearest.size());
       result.num_inliers = std::max(result.num_inliers, inliersOf(nearest));
       ransac = nearest;
       reference = "the key-frame (nearest-neighbour matches)";
@@ -699,6 +694,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     // wider gate) and RANSAC give x, y and yaw; dense ICP from there (height, roll and
     // pitch of the first result) wins when more features pair under it.
     std::string refit;
+    int dense_guided_pairs = -1; // guidedPairs(dense.T_world_lidar) once known
     if (dense.success && can_guide && params.turn_search.guided_refit_gate_m > 0.0) {
       const pcl::Correspondences matches =
           guidedMatches(dense.T_world_lidar, params.turn_search.guided_refit_gate_m);
@@ -714,6 +710,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
             params.dense);
         const int before = guidedPairs(dense.T_world_lidar);
         const int after = again.success ? guidedPairs(again.T_world_lidar) : 0;
+        dense_guided_pairs = std::max(before, after);
         if (after > before) {
           dense = again;
           refit = "; re-fitted from " + std::to_string(inliersOf(fit)) +
@@ -736,7 +733,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     // ... or when the features back it against that rival.
     bool feature_backed = false;
     if (dense.success && search.runner_up_pairs > 0 && can_guide) {
-      result.guided_pairs = guidedPairs(dense.T_world_lidar);
+      result.guided_pairs =
+          dense_guided_pairs >= 0 ? dense_guided_pairs : guidedPairs(dense.T_world_lidar);
       const int rival = guidedPairs(search.T_world_runner_up);
       feature_backed = result.guided_pairs >= params.min_feature_inliers &&
                        result.guided_pairs >= params.turn_search.guided_support_factor * rival;

@@ -71,6 +71,36 @@ TEST(HammingCorrespondenceEstimation, MatchesNoisyCopiesOfRandomDescriptors)
   }
 }
 
+/// The nearest-neighbour set that comes with a ratio-tested match is what matching with
+/// the ratio test and the mutual check off returns, and a superset of the strict one.
+TEST(HammingCorrespondenceEstimation, NearestSetEqualsMatchingWithoutRatioOrMutualCheck)
+{
+  std::mt19937 rng(11);
+  RasterFeatureSet source, target;
+  for (int i = 0; i < 100; ++i)
+    add(target, randomDescriptor(rng), static_cast<float>(i), 0.f);
+  // Half the source are noisy copies, half are copies of a few targets (ambiguous).
+  for (int i = 0; i < 100; ++i)
+    add(source, flipped(target.descriptors[i % 50 < 25 ? i : i % 5], (i * 7) % 240, 12),
+        static_cast<float>(i), 0.f);
+  pcl::rast::HammingMatchParams strict;
+  strict.spatial_gate_radius_m = 60.0;
+  pcl::Correspondences nearest;
+  const pcl::Correspondences matches =
+      pcl::rast::matchHamming(source, target, strict, Eigen::Isometry3d::Identity(), &nearest);
+  pcl::rast::HammingMatchParams loose = strict;
+  loose.ratio = 1.0;
+  loose.mutual_check = false;
+  const pcl::Correspondences expected = pcl::rast::matchHamming(source, target, loose);
+  ASSERT_EQ(nearest.size(), expected.size());
+  for (std::size_t k = 0; k < nearest.size(); ++k) {
+    EXPECT_EQ(nearest[k].index_query, expected[k].index_query);
+    EXPECT_EQ(nearest[k].index_match, expected[k].index_match);
+    EXPECT_FLOAT_EQ(nearest[k].distance, expected[k].distance);
+  }
+  EXPECT_LT(matches.size(), nearest.size()); // the ratio test and mutual check dropped some
+}
+
 TEST(HammingCorrespondenceEstimation, MaxHammingDistance)
 {
   RasterFeatureSet source, target;

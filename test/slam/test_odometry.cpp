@@ -35,6 +35,23 @@ struct Sequence
   std::vector<double> times;
 };
 
+/// Scans first, first + every, ... <= last of \a sim, with ground truth re-based on
+/// scan \a first and the simulator's timestamps.
+Sequence
+takeFrames(const rast::LidarSimulator& sim, std::size_t first, std::size_t last, std::size_t every)
+{
+  Sequence seq;
+  const rast::Pose3d T0_inv = sim.sensorPose(first).inverse();
+  for (std::size_t i = first; i <= last; i += every) {
+    auto cloud = std::make_shared<Cloud>();
+    sim.simulateFrame(i, *cloud);
+    seq.scans.push_back(cloud);
+    seq.T_world_lidar.push_back(T0_inv * sim.sensorPose(i));
+    seq.times.push_back(sim.timestamp(i));
+  }
+  return seq;
+}
+
 Sequence
 simulate(const rast::PoseVector& T_world_body,
          std::size_t every = 1,
@@ -45,17 +62,8 @@ simulate(const rast::PoseVector& T_world_body,
   params.world = world;
   params.seed = seed;
   params.num_threads = 2;
-  rast::LidarSimulator sim(params, T_world_body);
-  Sequence seq;
-  const rast::Pose3d T0_inv = sim.sensorPose(0).inverse();
-  for (std::size_t i = 0; i < sim.numFrames(); i += every) {
-    auto cloud = std::make_shared<Cloud>();
-    sim.simulateFrame(i, *cloud);
-    seq.scans.push_back(cloud);
-    seq.T_world_lidar.push_back(T0_inv * sim.sensorPose(i));
-    seq.times.push_back(sim.timestamp(i));
-  }
-  return seq;
+  const rast::LidarSimulator sim(params, T_world_body);
+  return takeFrames(sim, 0, sim.numFrames() - 1, every);
 }
 
 /// A city drive at 10 m/s, 10 Hz: straight, a 90 deg left turn, straight.
@@ -93,6 +101,17 @@ kittiLidarPoses(const std::filesystem::path& data, const std::string& seq)
   const rast::Trajectory gt =
       rast::readTrajectory((data / "kitti-gt-poses" / (seq + ".txt")).string());
   return rast::cameraToLidarPoses(gt.poses, rast::kittiAxisChangeCamLidar());
+}
+
+/// ... raised by the simulator's sensor height above its ground: the body path that
+/// pcl_rast_simulate -traj builds its world around.
+rast::PoseVector
+kittiBodyPath(const std::filesystem::path& data, const std::string& seq)
+{
+  rast::PoseVector path = kittiLidarPoses(data, seq);
+  for (auto& T : path)
+    T.translation().z() += 1.73;
+  return path;
 }
 
 /// The end-point error of the estimate vs ground truth, relative to path length.
@@ -297,24 +316,13 @@ TEST(Odometry, ColdStartAtHighSpeedWithoutFeatures)
 TEST(OdometryRealData, ColdStartDownAStreetIsBackedByGuidedFeatures)
 {
   PCL_RAST_REQUIRE_SHARED_DATA(data);
-  const rast::PoseVector lidar = kittiLidarPoses(data, "02");
-  ASSERT_GT(lidar.size(), 20u);
   // The world is made around the whole trajectory, as pcl_rast_simulate -traj makes it.
-  rast::PoseVector path = lidar;
-  for (auto& T : path)
-    T.translation().z() += 1.73; // the simulator's sensor height above its ground
+  const rast::PoseVector path = kittiBodyPath(data, "02");
+  ASSERT_GT(path.size(), 20u);
   rast::LidarSimulatorParams sim_params;
   sim_params.num_threads = 2;
-  rast::LidarSimulator sim(sim_params, path);
-  Sequence seq;
-  const rast::Pose3d T0_inv = sim.sensorPose(0).inverse();
-  for (std::size_t k = 0; k <= 15; k += 5) {
-    auto cloud = std::make_shared<Cloud>();
-    sim.simulateFrame(k, *cloud);
-    seq.scans.push_back(cloud);
-    seq.T_world_lidar.push_back(T0_inv * sim.sensorPose(k));
-    seq.times.push_back(0.1 * static_cast<double>(k)); // 2 Hz
-  }
+  const rast::LidarSimulator sim(sim_params, path);
+  const Sequence seq = takeFrames(sim, 0, 15, 5); // 2 Hz
 
   auto firstFrameError = [&seq](const rast::OdometryParams& params, rast::OdometryFrameResult& r) {
     rast::Odometry odometry(params);
@@ -345,23 +353,12 @@ TEST(OdometryRealData, ColdStartDownAStreetIsBackedByGuidedFeatures)
 TEST(OdometryRealData, HillsideFallbackIsRefittedFromGuidedFeatures)
 {
   PCL_RAST_REQUIRE_SHARED_DATA(data);
-  rast::PoseVector path = kittiLidarPoses(data, "10");
+  const rast::PoseVector path = kittiBodyPath(data, "10");
   ASSERT_GT(path.size(), 600u);
-  for (auto& T : path)
-    T.translation().z() += 1.73; // the simulator's sensor height above its ground
   rast::LidarSimulatorParams sim_params;
   sim_params.num_threads = 2;
-  rast::LidarSimulator sim(sim_params, path);
-  const std::size_t first = 500;
-  Sequence seq;
-  const rast::Pose3d T0_inv = sim.sensorPose(first).inverse();
-  for (std::size_t k = first; k <= 600; k += 5) {
-    auto cloud = std::make_shared<Cloud>();
-    sim.simulateFrame(k, *cloud);
-    seq.scans.push_back(cloud);
-    seq.T_world_lidar.push_back(T0_inv * sim.sensorPose(k));
-    seq.times.push_back(0.1 * static_cast<double>(k));
-  }
+  const rast::LidarSimulator sim(sim_params, path);
+  const Sequence seq = takeFrames(sim, 500, 600, 5); // 2 Hz
   auto worstFrameDeg = [&seq](const rast::OdometryParams& params, int& fallbacks) {
     rast::Odometry odometry(params);
     const auto results = run(odometry, seq);
@@ -721,16 +718,8 @@ TEST(OdometryRealData, Vlp16WeakFeaturesTakeHeightAndTiltFromThePrior)
   sim_params.sensor = rast::SensorModel::kVlp16;
   sim_params.seed = 1;
   sim_params.num_threads = 2;
-  rast::LidarSimulator sim(sim_params, path);
-  Sequence seq;
-  const rast::Pose3d T0_inv = sim.sensorPose(0).inverse();
-  for (std::size_t i = 0; i < sim.numFrames(); ++i) {
-    auto cloud = std::make_shared<Cloud>();
-    sim.simulateFrame(i, *cloud);
-    seq.scans.push_back(cloud);
-    seq.T_world_lidar.push_back(T0_inv * sim.sensorPose(i));
-    seq.times.push_back(0.1 * static_cast<double>(i));
-  }
+  const rast::LidarSimulator sim(sim_params, path);
+  const Sequence seq = takeFrames(sim, 0, sim.numFrames() - 1, 1);
   rast::OdometryParams params;
   rast::applySensorPreset(rast::SensorPreset::kVlp16, params);
   rast::OdometryParams without = params;

@@ -42,13 +42,17 @@ struct HammingMatchParams
 /// \param[in] T_target_source_guess initial guess, used only by the spatial gate
 /// \return one correspondence per accepted source feature: index_query = source index,
 ///   index_match = target index, distance = Hamming distance (bits); sorted by index_query
+/// \param[out] nearest if given: from the same distances, every source feature's nearest
+///   target within max_hamming_distance and the gate, without ratio test or mutual check
+///   (what params with ratio 1 and no mutual check would return)
 /// \throws std::invalid_argument on invalid params or a set whose points and
 ///   descriptors differ in number
 pcl::Correspondences
 matchHamming(const RasterFeatureSet& source,
              const RasterFeatureSet& target,
              const HammingMatchParams& params = HammingMatchParams(),
-             const Eigen::Isometry3d& T_target_source_guess = Eigen::Isometry3d::Identity());
+             const Eigen::Isometry3d& T_target_source_guess = Eigen::Isometry3d::Identity(),
+             pcl::Correspondences* nearest = nullptr);
 
 /// \brief PCL-style wrapper of matchHamming():
 /// setInputSource / setInputTarget / setInitialGuess, then determineCorrespondences().
