@@ -59,6 +59,8 @@ run(int argc, char** argv)
   args.addInt("frames", "generated path: number of poses", &path_params.num_frames);
   args.addDouble(
       "speed", "generated path: speed in m/s (os0-128 default 1.5)", &speed_mps);
+  double laps = 1.0 + path_params.revisit_fraction;
+  args.addDouble("laps", "generated loop/eight: times the closed path is driven", &laps);
   args.addDouble(
       "rate", "frame rate in Hz (generated paths, times of KITTI files)", &rate_hz);
   args.addSwitch("moving-cars", "add cars driving along the path", &moving_cars);
@@ -68,8 +70,8 @@ run(int argc, char** argv)
 
   if (traj.empty() == path.empty())
     throw std::invalid_argument("give exactly one of -traj FILE and -path TYPE");
-  if (!traj.empty() && (args.given("frames") || args.given("speed")))
-    throw std::invalid_argument("-frames and -speed apply to -path only");
+  if (!traj.empty() && (args.given("frames") || args.given("speed") || args.given("laps")))
+    throw std::invalid_argument("-frames, -speed and -laps apply to -path only");
   if (path.empty() == false && args.given("traj-frame"))
     throw std::invalid_argument("-traj-frame applies to -traj only");
   if (seed < 0)
@@ -110,6 +112,11 @@ run(int argc, char** argv)
   } else {
     path_params.type = pcl::rast::pathTypeFromString(path);
     path_params.rate_hz = rate_hz;
+    if (!(laps >= 1.0 && laps <= 100.0))
+      throw std::invalid_argument("-laps must be in [1, 100], got " + std::to_string(laps));
+    path_params.revisit_fraction = laps - 1.0;
+    if (path_params.type == pcl::rast::PathType::kStraight && args.given("laps"))
+      throw std::invalid_argument("-laps applies to -path loop and eight only");
     path_params.speed_mps =
         args.given("speed") || params.sensor != pcl::rast::SensorModel::kOs0_128
             ? speed_mps

@@ -273,8 +273,8 @@ PathParams::isValid(std::string* why) const
     return fail("height_m must be in [0, 20], got " + std::to_string(height_m));
   if (!(elevation_amplitude_m >= 0.0 && elevation_amplitude_m <= 50.0))
     return fail("elevation_amplitude_m must be in [0, 50]");
-  if (!(revisit_fraction >= 0.0 && revisit_fraction <= 1.0))
-    return fail("revisit_fraction must be in [0, 1]");
+  if (!(revisit_fraction >= 0.0 && revisit_fraction <= 99.0))
+    return fail("revisit_fraction must be in [0, 99]");
   return true;
 }
 

@@ -92,7 +92,7 @@ struct PathParams
   double rate_hz = 10.0;              ///< frames per second
   double height_m = 1.73;             ///< body origin above the ground
   double elevation_amplitude_m = 2.0; ///< gentle hills: +- this over ~300 m
-  double revisit_fraction = 0.15;     ///< loop/eight: extra fraction driven after closing
+  double revisit_fraction = 0.15;     ///< loop/eight: extra laps driven after the first (0.15: 1.15 laps)
 
   /// \brief True when every value is usable; otherwise \a why says which is not.
   bool isValid(std::string* why = nullptr) const;
