@@ -310,6 +310,7 @@ run(int argc, char** argv)
   std::string input, output, gt_path, threads = defaults.deterministic ? "off" : "on";
   int first = 0, last = -1, stride = 1;
   bool no_loop = !defaults.loop_closing.enable;
+  bool no_revisit_culling = !defaults.loop_closing.cull_revisits;
   bool no_ba = false;
   bool ba = false;
   bool global_ba = defaults.loop_closing.global_bundle_adjustment;
@@ -337,6 +338,10 @@ run(int argc, char** argv)
   parser.addChoice("sensor", "parameter preset (auto: guessed from the first scan)", &sensor,
                    pcl_rast_tools::sensorChoices());
   parser.addSwitch("no-loop", "disable loop closure", &no_loop);
+  parser.addSwitch("no-revisit-culling",
+                   "add every key-frame to the loop database, also where the map already "
+                   "has one (memory then grows with the time spent, not the area mapped)",
+                   &no_revisit_culling);
   parser.addSwitch("no-ba", "disable local bundle adjustment (the default)", &no_ba);
   parser.addSwitch("ba", "enable local bundle adjustment", &ba);
   parser.addSwitch("global-ba",
@@ -362,6 +367,7 @@ run(int argc, char** argv)
   rast::SlamParams params = defaults;
   params.deterministic = threads == "off";
   params.loop_closing.enable = !no_loop;
+  params.loop_closing.cull_revisits = !no_revisit_culling;
   if (ba)
     params.local_mapping.enable_bundle_adjustment = true;
   if (no_ba)
@@ -554,6 +560,8 @@ run(int argc, char** argv)
   summary["loop_candidates"] = stats.loop_candidates;
   summary["pose_graph_runs"] = stats.pose_graph_runs;
   summary["loop_searches_skipped"] = stats.loop_searches_skipped;
+  summary["loop_database_keyframes"] = stats.loop_database_keyframes;
+  summary["loop_database_revisits_culled"] = stats.loop_database_revisits_culled;
   summary["map_cloud_mb"] = stats.memory_bytes.at("map_clouds") / (1024.0 * 1024.0);
   for (const auto& [part, bytes] : stats.memory_bytes)
     summary["memory_mb"][part] = bytes / (1024.0 * 1024.0);
@@ -574,6 +582,7 @@ run(int argc, char** argv)
                        {"sensor", rast::toString(preset)},
                        {"sensor_choice", sensor_reason},
                        {"loop_closure", params.loop_closing.enable},
+                       {"revisit_culling", params.loop_closing.cull_revisits},
                        {"local_ba", params.local_mapping.enable_bundle_adjustment},
                        {"global_ba", params.loop_closing.global_bundle_adjustment},
                        {"map_leaf_m", map_leaf_m},

@@ -171,18 +171,11 @@ LocalMapping::processKeyFrame(const KeyFrame::Ptr& kf)
     problem.fixed = border;
     if (problem.fixed.empty() || in_window.count(0))
       problem.fixed.insert(window.front());
-    std::map<KeyFrameId, KeyFrame::Ptr> kfs;
-    for (const auto& [id, T] : problem.poses)
-      kfs[id] = map_->keyFrame(id);
     for (const MapPoint& mp : points) {
       problem.points[mp.id] = mp.p_world;
-      for (const auto& o : mp.observations) {
-        if (!problem.poses.count(o.keyframe))
-          continue;
-        const auto& fp = kfs[o.keyframe]->features.points[o.feature_index];
-        problem.observations.push_back(
-            {o.keyframe, mp.id, fp.getVector3fMap().cast<double>()});
-      }
+      for (const auto& o : mp.observations)
+        if (problem.poses.count(o.keyframe))
+          problem.observations.push_back({o.keyframe, mp.id, o.p_keyframe.cast<double>()});
     }
     const std::map<KeyFrameId, Pose3d> before = problem.poses;
     result.ba = bundleAdjust(problem, params_.bundle_adjustment);

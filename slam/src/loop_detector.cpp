@@ -340,6 +340,13 @@ LoopDetector::size() const
   return entries_.size();
 }
 
+std::size_t
+LoopDetector::numSkipped() const
+{
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return skipped_;
+}
+
 Pose3d
 LoopDetector::pose(KeyFrameId id) const
 {
@@ -370,12 +377,7 @@ LoopDetector::addKeyFrame(const KeyFrame::ConstPtr& keyframe,
   Entry entry;
   entry.keyframe = keyframe;
   entry.T_world_keyframe = T_world_keyframe;
-  if (!entries_.empty()) {
-    const Entry& last = entries_.back();
-    entry.travel_m =
-        last.travel_m +
-        stepLength(*keyframe, T_world_keyframe, last.keyframe->id, last.T_world_keyframe);
-  }
+  entry.travel_m = advanceTail(*keyframe, T_world_keyframe);
   if (params_.dense_check && keyframe->cloud)
     entry.dense_target = dense_store_->putVector(denseTarget(*keyframe->cloud, params_));
   entry.first_feature = static_cast<std::uint32_t>(feature_slot_.size());
@@ -431,16 +433,72 @@ LoopDetector::updatePose(KeyFrameId id, const Pose3d& T_world_keyframe)
   entries_[it->second].T_world_keyframe = T_world_keyframe;
 }
 
+void
+LoopDetector::updatePoses(const PoseVector& T_world_by_id)
+{
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  for (Entry& e : entries_)
+    if (e.keyframe->id < T_world_by_id.size())
+      e.T_world_keyframe = T_world_by_id[e.keyframe->id];
+  if (tail_ && tail_->id < T_world_by_id.size())
+    tail_->T_world_keyframe = T_world_by_id[tail_->id];
+}
+
 // ---------------------------------------------------------------- candidates
 
 double
 LoopDetector::travelTo(const KeyFrame& query, const Pose3d& T_world_query) const
 {
-  if (entries_.empty())
+  if (!tail_)
     return 0.0;
-  const Entry& last = entries_.back();
-  return last.travel_m +
-         stepLength(query, T_world_query, last.keyframe->id, last.T_world_keyframe);
+  return tail_->travel_m + stepLength(query, T_world_query, tail_->id, tail_->T_world_keyframe);
+}
+
+double
+LoopDetector::advanceTail(const KeyFrame& keyframe, const Pose3d& T_world_keyframe)
+{
+  const double travel_m = travelTo(keyframe, T_world_keyframe);
+  tail_ = Tail{keyframe.id, T_world_keyframe, travel_m};
+  return travel_m;
+}
+
+void
+LoopDetector::skipKeyFrame(const KeyFrame& keyframe, const Pose3d& T_world_keyframe)
+{
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  advanceTail(keyframe, T_world_keyframe);
+  ++skipped_;
+}
+
+std::optional<KeyFrameId>
+LoopDetector::coveringKeyFrame(const KeyFrame& query,
+                               const Pose3d& T_world_query,
+                               double radius_m,
+                               double angle_deg) const
+{
+  if (!(radius_m > 0.0) || !(angle_deg > 0.0))
+    throw std::invalid_argument("LoopDetector::coveringKeyFrame: radius_m (" +
+                                std::to_string(radius_m) + ") and angle_deg (" +
+                                std::to_string(angle_deg) + ") must be positive");
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  const std::vector<char> eligible = eligibleSlots(query, travelTo(query, T_world_query));
+  const double max_angle_rad = angle_deg * EIGEN_PI / 180.0;
+  std::optional<KeyFrameId> best;
+  double best_distance = radius_m;
+  for (std::size_t s = 0; s < entries_.size(); ++s) {
+    if (!eligible[s])
+      continue;
+    const Pose3d& T = entries_[s].T_world_keyframe;
+    const double d = (T.translation() - T_world_query.translation()).norm();
+    if (d > best_distance)
+      continue;
+    const Eigen::AngleAxisd rotation(T.rotation().transpose() * T_world_query.rotation());
+    if (rotation.angle() > max_angle_rad)
+      continue;
+    best_distance = d;
+    best = entries_[s].keyframe->id;
+  }
+  return best;
 }
 
 std::vector<char>

@@ -151,6 +151,13 @@ LoopClosingParams::isValid(std::string* why) const
     reason = "inconsistent_chi2 must be > 0, got " + std::to_string(inconsistent_chi2);
   else if (cooldown_keyframes < 0)
     reason = "cooldown_keyframes must be >= 0, got " + std::to_string(cooldown_keyframes);
+  else if (!positive(revisit_radius_m))
+    reason = "revisit_radius_m must be > 0, got " + std::to_string(revisit_radius_m);
+  else if (!(revisit_angle_deg > 0.0 && revisit_angle_deg <= 180.0))
+    reason = "revisit_angle_deg must be in (0, 180], got " + std::to_string(revisit_angle_deg);
+  else if (revisit_anchor_keyframes < 0)
+    reason = "revisit_anchor_keyframes must be >= 0, got " +
+             std::to_string(revisit_anchor_keyframes);
   else if (global_ba_max_iterations < 1)
     reason = "global_ba_max_iterations must be >= 1, got " +
              std::to_string(global_ba_max_iterations);
@@ -201,9 +208,7 @@ globalBundleAdjustment(std::map<KeyFrameId, Pose3d>& poses,
     problem.points[mp.id] = mp.p_world;
     for (const auto& o : mp.observations)
       if (problem.poses.count(o.keyframe) && o.keyframe < keyframes.size())
-        problem.observations.push_back(
-            {o.keyframe, mp.id,
-             keyframes[o.keyframe]->features.points[o.feature_index].getVector3fMap().cast<double>()});
+        problem.observations.push_back({o.keyframe, mp.id, o.p_keyframe.cast<double>()});
   }
   // Odometry edges keep key-frames without shared points connected; loop edges carry
   // the loop (no map point is associated across a loop).
@@ -249,6 +254,9 @@ struct RastSlam::Impl
   std::map<std::string, double> cpu_ms; ///< per stage, the threads' CPU time
   std::size_t searches_skipped = 0;
   int keyframes_since_loop = -1; ///< loop-closing thread only; -1: no loop yet
+  /// Loop-closing thread only: key-frames outside the loop database whose features are
+  /// still held (see releaseFinishedFeatures), oldest first.
+  std::deque<KeyFrameId> features_to_release;
   std::map<std::string, std::size_t> status_counts;
   std::size_t skipped = 0, accepted = 0, rejected = 0, inconsistent = 0, candidates = 0;
   std::vector<LoopRecord> loop_records;
@@ -336,13 +344,47 @@ struct RastSlam::Impl
   /// joins the database. Its full cloud is released afterwards unless kept.
   void closeLoops(const KeyFrame::Ptr& kf, bool backlog = false)
   {
-    if (params.loop_closing.enable)
-      searchAndClose(kf, backlog);
+    const bool in_database = params.loop_closing.enable && searchAndClose(kf, backlog);
     if (!params.keep_keyframe_clouds)
       map->releaseKeyFrameCloud(kf->id); // the detector keeps its dense target
+    if (!in_database && !params.loop_closing.global_bundle_adjustment)
+      features_to_release.push_back(kf->id);
+    releaseFinishedFeatures(kf->id);
   }
 
-  void searchAndClose(const KeyFrame::Ptr& kf, bool backlog)
+  /// Key-frames outside the loop database hold their features only for tracking and
+  /// local mapping (bundle adjustment reads the observations' own copies): once well
+  /// behind the newest key-frame loop closing has, which local mapping is done with,
+  /// nothing reads them again, and they are released (~28 kB a key-frame).
+  void releaseFinishedFeatures(KeyFrameId newest)
+  {
+    const auto margin = static_cast<KeyFrameId>(2 * params.local_mapping.window_size + 2);
+    while (!features_to_release.empty() && features_to_release.front() + margin <= newest) {
+      map->releaseKeyFrameFeatures(features_to_release.front());
+      features_to_release.pop_front();
+    }
+  }
+
+  /// Add the key-frame to the loop database, unless its place is in it already and the
+  /// map is anchored there by a recent loop (revisit culling): then the database grows
+  /// with the mapped area, not with the time spent in it. Returns whether it was added.
+  bool admit(const KeyFrame::Ptr& kf)
+  {
+    const LoopClosingParams& lc = params.loop_closing;
+    const Pose3d T_world_kf = map->keyFramePose(kf->id);
+    const bool anchored =
+        keyframes_since_loop >= 0 && keyframes_since_loop <= lc.revisit_anchor_keyframes;
+    if (lc.cull_revisits && anchored &&
+        detector.coveringKeyFrame(*kf, T_world_kf, lc.revisit_radius_m, lc.revisit_angle_deg)) {
+      detector.skipKeyFrame(*kf, T_world_kf);
+      return false;
+    }
+    detector.addKeyFrame(kf, T_world_kf);
+    return true;
+  }
+
+  /// Returns whether the key-frame joined the loop database.
+  bool searchAndClose(const KeyFrame::Ptr& kf, bool backlog)
   {
     const Pose3d T_world_kf = map->keyFramePose(kf->id);
     const int cooldown = params.loop_closing.cooldown_keyframes;
@@ -351,15 +393,14 @@ struct RastSlam::Impl
       ++keyframes_since_loop;
     const double cpu0 = threadCpuMs();
     if (backlog || cooling) {
-      detector.addKeyFrame(kf, T_world_kf);
+      const bool added = admit(kf);
       std::lock_guard<std::mutex> lock(stats_mutex);
       ++searches_skipped;
       cpu_ms["loop_detection"] += threadCpuMs() - cpu0;
-      return;
+      return added;
     }
     const auto start = Clock::now();
     const LoopDetection detection = detector.detect(*kf, T_world_kf);
-    detector.addKeyFrame(kf, T_world_kf);
     const double detect_ms = msSince(start);
     const LoopVerification* best = detection.best();
     {
@@ -380,7 +421,7 @@ struct RastSlam::Impl
       }
     }
     if (!best)
-      return;
+      return admit(kf);
     keyframes_since_loop = 0;
     LoopEdge edge;
     edge.query = best->query;
@@ -390,8 +431,11 @@ struct RastSlam::Impl
     map->addLoopEdge(edge);
     const double cpu1 = threadCpuMs();
     optimizeGraph();
-    std::lock_guard<std::mutex> lock(stats_mutex);
-    cpu_ms["pose_graph"] += threadCpuMs() - cpu1;
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      cpu_ms["pose_graph"] += threadCpuMs() - cpu1;
+    }
+    return admit(kf); // at its corrected pose
   }
 
   /// Pose-graph optimisation over all key-frames: odometry edges (tracking's relative
@@ -458,9 +502,7 @@ struct RastSlam::Impl
     }
     map->applyLoopCorrection(corrected);
     // The detector searches around the corrected poses from now on.
-    const PoseVector updated = map->keyFramePoses();
-    for (std::size_t id = 0; id < std::min(updated.size(), detector.size()); ++id)
-      detector.updatePose(static_cast<KeyFrameId>(id), updated[id]);
+    detector.updatePoses(map->keyFramePoses());
     std::lock_guard<std::mutex> lock(stats_mutex);
     pose_graph_ms.push_back(msSince(start));
     inconsistent += dropped.size();
@@ -662,6 +704,8 @@ RastSlam::statistics() const
   for (const auto& [stage, ms] : impl_->cpu_ms)
     s.timing[stage].cpu_total_ms = ms;
   s.loop_searches_skipped = impl_->searches_skipped;
+  s.loop_database_keyframes = impl_->detector.size();
+  s.loop_database_revisits_culled = impl_->detector.numSkipped();
   return s;
 }
 

@@ -358,6 +358,15 @@ SlamMap::releaseKeyFrameCloud(KeyFrameId id)
   keyframes_.at(id).kf->cloud.reset();
 }
 
+void
+SlamMap::releaseKeyFrameFeatures(KeyFrameId id)
+{
+  std::lock_guard<std::mutex> lock(mutex_);
+  KeyFrame& kf = *keyframes_.at(id).kf;
+  kf.features = RasterFeatureSet();
+  kf.map_point_ids = std::vector<MapPointId>();
+}
+
 SlamMap::MemoryUsage
 SlamMap::memoryUsage() const
 {
@@ -511,17 +520,16 @@ SlamMap::createMapPoint(KeyFrameId keyframe,
                         const OrbDescriptor& descriptor)
 {
   std::lock_guard<std::mutex> lock(mutex_);
+  const MapPointObservation observation = observationLocked(keyframe, feature_index);
   MapPoint mp;
   mp.id = next_map_point_id_++;
   mp.p_world = p_world;
   mp.descriptor = descriptor;
   mp.reference_keyframe = keyframe;
-  mp.observations.push_back({keyframe, feature_index});
-  if (keyframe < keyframes_.size()) {
-    auto& ids = keyframes_[keyframe].kf->map_point_ids;
-    if (feature_index >= 0 && static_cast<std::size_t>(feature_index) < ids.size())
-      ids[feature_index] = mp.id;
-  }
+  mp.observations.push_back(observation);
+  auto& ids = keyframes_[keyframe].kf->map_point_ids;
+  if (static_cast<std::size_t>(feature_index) < ids.size())
+    ids[feature_index] = mp.id;
   map_points_.emplace(mp.id, std::move(mp));
   return next_map_point_id_ - 1;
 }
@@ -530,15 +538,27 @@ void
 SlamMap::addObservation(MapPointId id, KeyFrameId keyframe, int feature_index)
 {
   std::lock_guard<std::mutex> lock(mutex_);
+  const MapPointObservation observation = observationLocked(keyframe, feature_index);
   auto it = map_points_.find(id);
   if (it == map_points_.end())
     return;
-  it->second.observations.push_back({keyframe, feature_index});
-  if (keyframe < keyframes_.size()) {
-    auto& ids = keyframes_[keyframe].kf->map_point_ids;
-    if (feature_index >= 0 && static_cast<std::size_t>(feature_index) < ids.size())
-      ids[feature_index] = id;
-  }
+  it->second.observations.push_back(observation);
+  auto& ids = keyframes_[keyframe].kf->map_point_ids;
+  if (static_cast<std::size_t>(feature_index) < ids.size())
+    ids[feature_index] = id;
+}
+
+MapPointObservation
+SlamMap::observationLocked(KeyFrameId keyframe, int feature_index) const
+{
+  if (keyframe >= keyframes_.size())
+    throw std::invalid_argument("SlamMap: unknown key-frame " + std::to_string(keyframe));
+  const RasterFeatureSet& features = keyframes_[keyframe].kf->features;
+  if (feature_index < 0 || static_cast<std::size_t>(feature_index) >= features.size())
+    throw std::invalid_argument("SlamMap: key-frame " + std::to_string(keyframe) +
+                                " has no feature " + std::to_string(feature_index) + " (" +
+                                std::to_string(features.size()) + " features)");
+  return {keyframe, feature_index, features.points[feature_index].getVector3fMap()};
 }
 
 std::vector<MapPoint>

@@ -351,6 +351,56 @@ TEST(LoopDetector, DatabaseBookkeeping)
                std::invalid_argument);
 }
 
+/// A key-frame without features at a pose: the covering query only looks at poses.
+KeyFrame::Ptr
+bareKeyFrame(KeyFrameId id)
+{
+  auto kf = std::make_shared<KeyFrame>();
+  kf->id = id;
+  return kf;
+}
+
+TEST(LoopDetector, CoveringKeyFrameIsAnEarlierNeighbourAtASimilarHeading)
+{
+  LoopDetectorParams params;
+  params.min_keyframe_gap = 2;
+  params.min_travel_gap_m = 30.0;
+  params.dense_check = false;
+  LoopDetector detector(params);
+  // Out along x and back: 0 at the origin, 1 at x = 1, skipped 2 at x = 40.
+  detector.addKeyFrame(bareKeyFrame(0), Pose3d::Identity());
+  detector.addKeyFrame(bareKeyFrame(1), yawPose(0.0, {1.0, 0.0, 0.0}));
+  detector.skipKeyFrame(*bareKeyFrame(2), yawPose(180.0, {40.0, 0.0, 0.0}));
+  EXPECT_EQ(detector.size(), 2u);
+  EXPECT_EQ(detector.numSkipped(), 1u);
+  const auto query = bareKeyFrame(3);
+  // Back near the origin: key-frame 0 (0.3 m away) covers it, key-frame 1 is 0.7 m away.
+  const auto covering = detector.coveringKeyFrame(*query, yawPose(10.0, {0.3, 0.5, 0.0}), 3.0, 30.0);
+  ASSERT_TRUE(covering.has_value());
+  EXPECT_EQ(*covering, 0u);
+  // Too far, or turned too much: nothing covers it.
+  EXPECT_FALSE(detector.coveringKeyFrame(*query, yawPose(0.0, {5.0, 0.0, 0.0}), 3.0, 30.0));
+  EXPECT_FALSE(detector.coveringKeyFrame(*query, yawPose(90.0, {0.3, 0.0, 0.0}), 3.0, 30.0));
+  EXPECT_TRUE(detector.coveringKeyFrame(*query, yawPose(90.0, {0.3, 0.0, 0.0}), 3.0, 100.0));
+  EXPECT_THROW(detector.coveringKeyFrame(*query, Pose3d::Identity(), 0.0, 30.0),
+               std::invalid_argument);
+  EXPECT_THROW(detector.coveringKeyFrame(*query, Pose3d::Identity(), 3.0, -1.0),
+               std::invalid_argument);
+
+  // The skipped key-frame's 78 m round trip counts as travel: without it the query would
+  // be 1.7 m of travel from key-frame 0, too recent to cover it.
+  LoopDetector unskipped(params);
+  unskipped.addKeyFrame(bareKeyFrame(0), Pose3d::Identity());
+  unskipped.addKeyFrame(bareKeyFrame(1), yawPose(0.0, {1.0, 0.0, 0.0}));
+  EXPECT_FALSE(unskipped.coveringKeyFrame(*query, yawPose(0.0, {0.3, 0.0, 0.0}), 3.0, 30.0));
+
+  // updatePoses moves the database (and the skipped tail), ids beyond the vector stay.
+  detector.updatePoses({yawPose(0.0, {20.0, 0.0, 0.0})});
+  EXPECT_TRUE(detector.pose(0).isApprox(yawPose(0.0, {20.0, 0.0, 0.0})));
+  EXPECT_TRUE(detector.pose(1).isApprox(yawPose(0.0, {1.0, 0.0, 0.0})));
+  EXPECT_FALSE(detector.coveringKeyFrame(*query, yawPose(10.0, {0.3, 0.5, 0.0}), 0.5, 30.0));
+}
+
 TEST(LoopDetector, RevisitFoundByDistanceAndVerified)
 {
   const auto& s = scene();

@@ -11,7 +11,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <iostream>
 #include <memory>
 #include <vector>
@@ -28,29 +30,34 @@ struct LoopSequence
   PoseVector gt;
 };
 
+/// A simulated HDL-64 drive around the rounded-rectangle loop.
+LoopSequence
+simulateLoop(int num_frames, double revisit_fraction, int seed)
+{
+  PathParams path;
+  path.type = PathType::kLoop;
+  path.num_frames = num_frames;
+  path.revisit_fraction = revisit_fraction;
+  LidarSimulatorParams params;
+  params.seed = seed;
+  params.num_threads = 2;
+  LidarSimulator sim(params, generatePath(path));
+  LoopSequence s;
+  const Pose3d T0_inv = sim.sensorPose(0).inverse();
+  for (std::size_t i = 0; i < sim.numFrames(); ++i) {
+    auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    sim.simulateFrame(i, *cloud);
+    s.clouds.push_back(cloud);
+    s.times.push_back(sim.timestamp(i));
+    s.gt.push_back(T0_inv * sim.sensorPose(i));
+  }
+  return s;
+}
+
 const LoopSequence&
 loopSequence()
 {
-  static const LoopSequence sequence = [] {
-    PathParams path;
-    path.type = PathType::kLoop;
-    path.num_frames = 200;
-    path.revisit_fraction = 0.25;
-    LidarSimulatorParams params;
-    params.seed = 3;
-    params.num_threads = 2;
-    LidarSimulator sim(params, generatePath(path));
-    LoopSequence s;
-    const Pose3d T0_inv = sim.sensorPose(0).inverse();
-    for (std::size_t i = 0; i < sim.numFrames(); ++i) {
-      auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
-      sim.simulateFrame(i, *cloud);
-      s.clouds.push_back(cloud);
-      s.times.push_back(sim.timestamp(i));
-      s.gt.push_back(T0_inv * sim.sensorPose(i));
-    }
-    return s;
-  }();
+  static const LoopSequence sequence = simulateLoop(200, 0.25, 3);
   return sequence;
 }
 
@@ -185,6 +192,60 @@ TEST(RastSlam, ThreadedModeProcessesEveryFrame)
   EXPECT_LT(evaluateTrajectory(r.poses, s.gt).ate_rmse_m, 2.0);
 }
 
+/// Three laps of a 140 m loop, made once for the revisit-culling test.
+const LoopSequence&
+threeLapSequence()
+{
+  static const LoopSequence sequence = simulateLoop(420, 2.0, 5);
+  return sequence;
+}
+
+TEST(RastSlam, RevisitsDoNotGrowTheLoopDatabase)
+{
+  const LoopSequence& s = threeLapSequence();
+  const std::size_t lap = s.clouds.size() / 3;
+  RastSlam slam(deterministicParams());
+  SlamStatistics after_first_lap;
+  for (std::size_t i = 0; i < s.clouds.size(); ++i) {
+    slam.addScan(s.clouds[i], s.times[i], i);
+    if (i + 1 == lap)
+      after_first_lap = slam.statistics();
+  }
+  slam.finish();
+  const SlamStatistics end = slam.statistics();
+  const std::size_t added_kf = end.keyframes - after_first_lap.keyframes;
+  const std::size_t added_db = end.loop_database_keyframes - after_first_lap.loop_database_keyframes;
+  std::printf("[ culling ] lap 1: %zu key-frames, %zu in the database; laps 2-3: +%zu "
+              "key-frames, +%zu in the database, %zu loops, features %zu -> %zu B\n",
+              after_first_lap.keyframes, after_first_lap.loop_database_keyframes, added_kf,
+              added_db, end.loops_accepted, after_first_lap.memory_bytes.at("features"),
+              end.memory_bytes.at("features"));
+  EXPECT_EQ(end.loop_database_keyframes + end.loop_database_revisits_culled, end.keyframes);
+  ASSERT_GT(added_kf, 20u);
+  // The second and third laps drive over mapped ground: few of their key-frames join
+  // the database (those between loops, before the map is anchored again) ...
+  EXPECT_LT(added_db, added_kf / 4);
+  // ... and their features are released, so the features' memory hardly grows.
+  const double per_kf_lap1 = static_cast<double>(after_first_lap.memory_bytes.at("features")) /
+                             after_first_lap.keyframes;
+  EXPECT_LT(end.memory_bytes.at("features"),
+            after_first_lap.memory_bytes.at("features") + 0.4 * per_kf_lap1 * added_kf);
+  // Loops are still closed on every lap, against the first lap's key-frames, and the
+  // trajectory stays accurate.
+  EXPECT_GE(end.loops_accepted, 2u);
+  const PoseVector poses = slam.framePoses();
+  ASSERT_EQ(poses.size(), s.gt.size());
+  EXPECT_LT(evaluateTrajectory(poses, s.gt).ate_rmse_m, 0.1);
+  std::vector<std::size_t> kf_frames;
+  for (const auto& kf : slam.keyFrames())
+    kf_frames.push_back(kf->frame_index);
+  for (const LoopEdge& e : slam.loops()) {
+    const Pose3d T_gt = s.gt[kf_frames.at(e.candidate)].inverse() * s.gt[kf_frames.at(e.query)];
+    EXPECT_LT((T_gt.translation() - e.T_candidate_query.translation()).norm(), 0.5)
+        << "loop " << e.candidate << " -> " << e.query;
+  }
+}
+
 TEST(RastSlam, ReportsBadUse)
 {
   SlamParams bad;
@@ -196,6 +257,17 @@ TEST(RastSlam, ReportsBadUse)
   bad = SlamParams();
   bad.loop_closing.inconsistent_chi2 = -1.0;
   EXPECT_FALSE(bad.isValid());
+  for (const auto& [field, set] :
+       std::vector<std::pair<std::string, std::function<void(LoopClosingParams&)>>>{
+           {"revisit_radius_m", [](LoopClosingParams& p) { p.revisit_radius_m = 0.0; }},
+           {"revisit_angle_deg", [](LoopClosingParams& p) { p.revisit_angle_deg = 181.0; }},
+           {"revisit_anchor_keyframes",
+            [](LoopClosingParams& p) { p.revisit_anchor_keyframes = -1; }}}) {
+    bad = SlamParams();
+    set(bad.loop_closing);
+    EXPECT_FALSE(bad.isValid(&why)) << field;
+    EXPECT_NE(why.find(field), std::string::npos) << why;
+  }
 
   RastSlam slam(deterministicParams());
   slam.finish();

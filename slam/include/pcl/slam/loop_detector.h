@@ -13,6 +13,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <pcl/registration/hamming_correspondence_estimation.h>
 #include <pcl/registration/point_to_plane_refinement.h>
 #include <pcl/registration/rigid_ransac.h>
@@ -298,6 +299,25 @@ public:
   /// \throws std::invalid_argument when null or its id is already in the database
   void addKeyFrame(const KeyFrame::ConstPtr& keyframe, const Pose3d& T_world_keyframe);
 
+  /// \brief The database key-frame nearest to \a T_world_query among those a loop
+  /// could be closed with (at least min_keyframe_gap key-frames and min_travel_gap_m
+  /// back) that lie within \a radius_m and \a angle_deg (rotation angle) of it; none
+  /// when the place is not in the database yet. Trusts the poses: ask after the map
+  /// was anchored there by a loop.
+  /// \throws std::invalid_argument when radius_m or angle_deg is not positive
+  std::optional<KeyFrameId> coveringKeyFrame(const KeyFrame& query,
+                                             const Pose3d& T_world_query,
+                                             double radius_m,
+                                             double angle_deg) const;
+
+  /// \brief Pass over a key-frame that is not added (its place is covered, see
+  /// coveringKeyFrame): later key-frames still count its step in the travelled
+  /// distance that candidate eligibility uses.
+  void skipKeyFrame(const KeyFrame& keyframe, const Pose3d& T_world_keyframe);
+
+  /// \brief Key-frames passed over by skipKeyFrame.
+  std::size_t numSkipped() const;
+
   /// \brief After an optimisation: the corrected pose of a key-frame in the database.
   /// \throws std::invalid_argument when \a id is unknown
   void updatePose(KeyFrameId id, const Pose3d& T_world_keyframe);
@@ -321,6 +341,10 @@ public:
   /// For evaluation and tools.
   std::vector<std::pair<KeyFrameId, int>>
   rankByAppearance(const KeyFrame& query, const Pose3d& T_world_query) const;
+
+  /// \brief Update the poses of all key-frames in the database (and of the last one
+  /// skipped) from poses indexed by key-frame id; ids beyond the vector keep theirs.
+  void updatePoses(const PoseVector& T_world_by_id);
 
   /// \brief Number of key-frames in the database.
   std::size_t size() const;
@@ -367,6 +391,8 @@ private:
                                              const LoopDetectorParams& params);
   static PointVector decodeDense(const std::vector<DensePoint>& points);
   double travelTo(const KeyFrame& query, const Pose3d& T_world_query) const;
+  /// Make \a keyframe the newest seen; returns its travelled distance.
+  double advanceTail(const KeyFrame& keyframe, const Pose3d& T_world_keyframe);
 
   std::vector<char> eligibleSlots(const KeyFrame& query, double query_travel_m) const;
 
@@ -374,6 +400,15 @@ private:
   BlobStore::Ptr dense_store_;
   mutable std::shared_mutex mutex_;
   std::vector<Entry> entries_;
+  /// The newest key-frame seen (added or skipped): the end of the travelled path.
+  struct Tail
+  {
+    KeyFrameId id = 0;
+    Pose3d T_world_keyframe = Pose3d::Identity();
+    double travel_m = 0.0;
+  };
+  std::optional<Tail> tail_;
+  std::size_t skipped_ = 0;
   std::unordered_map<KeyFrameId, std::size_t> slot_of_;
   std::vector<std::uint32_t> feature_slot_; ///< global feature index -> slot
   /// Global indices of the features sharing one substring; a bucket that outgrew

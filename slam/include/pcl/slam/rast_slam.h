@@ -59,6 +59,17 @@ struct LoopClosingParams
   /// is searched, the older ones are only added to the database (the stage keeps up with
   /// tracking instead of falling behind). Deterministic mode never waits.
   bool search_newest_only_when_backlogged = true;
+  /// Revisit culling: a key-frame is not added to the loop database when an earlier
+  /// database key-frame lies within revisit_radius_m and revisit_angle_deg of it and the
+  /// map is anchored there, i.e. a loop was accepted at most revisit_anchor_keyframes
+  /// key-frames ago (before that, poses may have drifted and closeness means little).
+  /// Its place stays findable through the earlier key-frame, and its features are
+  /// released once local mapping is done with it. The database, and the memory, then
+  /// grow with the mapped area rather than with the time spent in it.
+  bool cull_revisits = true;
+  double revisit_radius_m = 3.0;
+  double revisit_angle_deg = 30.0;
+  int revisit_anchor_keyframes = 20;
   /// Run a global bundle adjustment (all key-frames, all map points, loop edges as
   /// pose constraints) after each pose-graph optimization: the paper's comparison.
   /// Keeps every map point (no culling from memory), so it is for measurements only.
@@ -125,6 +136,9 @@ struct SlamStatistics
   /// Key-frames added to the loop database without a search (cooldown after a loop,
   /// or a backlog in threaded mode).
   std::size_t loop_searches_skipped = 0;
+  /// Key-frames in the loop database, and those left out by revisit culling.
+  std::size_t loop_database_keyframes = 0;
+  std::size_t loop_database_revisits_culled = 0;
   /// Approximate heap bytes by part: "map_clouds", "keyframe_clouds", "features",
   /// "map_points", "frames" (the map) and "loop_dense_targets",
   /// "loop_appearance_index" (the loop database); "map_clouds_on_disk" and
@@ -184,7 +198,9 @@ public:
   std::vector<FrameRecord> frames() const;
   /// \brief Corrected key-frame poses, by id.
   PoseVector keyFramePoses() const;
-  /// \brief The key-frames (features, clouds), by id.
+  /// \brief The key-frames, by id. Their clouds are released after loop closing
+  /// (SlamParams::keep_keyframe_clouds), and the features of those left out of the loop
+  /// database once local mapping is done with them (LoopClosingParams::cull_revisits).
   std::vector<KeyFrame::Ptr> keyFrames() const;
   /// \brief Merged map of all key-frame clouds at their corrected poses.
   pcl::PointCloud<pcl::PointXYZI>::Ptr buildMap(double leaf_m) const;

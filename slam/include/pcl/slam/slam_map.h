@@ -29,11 +29,14 @@
 namespace pcl {
 namespace rast {
 
-/// \brief One observation of a map point: feature \a feature_index of key-frame \a keyframe.
+/// \brief One observation of a map point: feature \a feature_index of key-frame
+/// \a keyframe, with that feature's point (bundle adjustment reads it from here, so a
+/// key-frame's features can be released while its observations live on).
 struct MapPointObservation
 {
   KeyFrameId keyframe = 0;
   int feature_index = 0;
+  Eigen::Vector3f p_keyframe = Eigen::Vector3f::Zero(); ///< in the key-frame's LiDAR frame [m]
 };
 
 /// \brief A 3D landmark of the local map (the paper's map-point): world position,
@@ -146,6 +149,12 @@ public:
   /// read KeyFrame::cloud of key-frames from keyFrames() must not run concurrently.
   /// \throws std::out_of_range on an unknown id.
   void releaseKeyFrameCloud(KeyFrameId id);
+  /// \brief Drop key-frame \a id's features and map-point ids (both become empty),
+  /// for key-frames no stage reads any more (outside the loop database, behind local
+  /// mapping's window and tracking): map-point observations keep their own copy of the
+  /// point. The same caveat as above applies.
+  /// \throws std::out_of_range on an unknown id.
+  void releaseKeyFrameFeatures(KeyFrameId id);
   /// \brief Approximate heap bytes held, by part (memory reports).
   struct MemoryUsage
   {
@@ -182,11 +191,13 @@ public:
 
   // ---- map points (local mapping) ----
   /// \brief Create a map point seen by feature \a feature_index of \a keyframe.
+  /// \throws std::invalid_argument when the map has no such key-frame or feature
   MapPointId createMapPoint(KeyFrameId keyframe,
                             int feature_index,
                             const Eigen::Vector3d& p_world,
                             const OrbDescriptor& descriptor);
   /// \brief Add an observation to an existing map point (ignored when it was culled).
+  /// \throws std::invalid_argument when the map has no such key-frame or feature
   void addObservation(MapPointId id, KeyFrameId keyframe, int feature_index);
   /// \brief Snapshot of all live map points.
   std::vector<MapPoint> mapPoints() const;
@@ -249,6 +260,8 @@ private:
 
   double map_cloud_leaf_m_ = 0.0;
   BlobStore::Ptr cloud_store_;
+  /// Observation of feature \a feature_index of \a keyframe (caller holds mutex_).
+  MapPointObservation observationLocked(KeyFrameId keyframe, int feature_index) const;
   mutable std::mutex mutex_;
   std::vector<KeyFrameEntry> keyframes_; // index == id
   std::map<MapPointId, MapPoint> map_points_;
