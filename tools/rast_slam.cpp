@@ -23,6 +23,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -40,7 +41,6 @@
 #include <string>
 #include <sys/resource.h>
 #include <thread>
-#include <unordered_map>
 #include <unistd.h>
 
 namespace {
@@ -107,36 +107,50 @@ public:
     cell_m_ = std::max(metres_per_px, map_leaf_m);
   }
 
+  /// \brief Add one map tile: its highest point per cell joins the picture. A cell
+  /// that straddles two tiles may get a point from each (the renderer draws the higher
+  /// one on top).
   void add(const pcl::PointCloud<pcl::PointXYZI>& tile)
   {
-    for (pcl::PointXYZI p : tile.points) {
-      p.getVector3fMap() = R_ * p.getVector3fMap();
-      if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))
+    cells_.clear();
+    for (std::size_t k = 0; k < tile.size(); ++k) {
+      const Eigen::Vector3f p = R_ * tile.points[k].getVector3fMap();
+      if (!p.allFinite())
         continue;
-      const auto ix = static_cast<std::int64_t>(std::floor(p.x / cell_m_));
-      const auto iy = static_cast<std::int64_t>(std::floor(p.y / cell_m_));
-      const std::uint64_t key = (static_cast<std::uint64_t>(ix & 0xFFFFFFFF) << 32) |
-                                static_cast<std::uint64_t>(iy & 0xFFFFFFFF);
-      const auto [it, inserted] = top_.emplace(key, p);
-      if (!inserted && p.z > it->second.z)
-        it->second = p;
+      const auto ix = static_cast<std::int64_t>(std::floor(p.x() / cell_m_));
+      const auto iy = static_cast<std::int64_t>(std::floor(p.y() / cell_m_));
+      cells_.push_back({(static_cast<std::uint64_t>(ix & 0xFFFFFFFF) << 32) |
+                            static_cast<std::uint64_t>(iy & 0xFFFFFFFF),
+                        p.z(), static_cast<std::uint32_t>(k)});
+    }
+    // Highest first within each cell, then keep the first of every cell.
+    std::sort(cells_.begin(), cells_.end(), [](const Cell& a, const Cell& b) {
+      return a.key != b.key ? a.key < b.key : a.z > b.z;
+    });
+    for (std::size_t i = 0; i < cells_.size(); ++i) {
+      if (i > 0 && cells_[i].key == cells_[i - 1].key)
+        continue;
+      pcl::PointXYZI q = tile.points[cells_[i].index];
+      q.getVector3fMap() = R_ * q.getVector3fMap();
+      top_.push_back(q);
     }
   }
 
-  /// \brief The gathered points (cell order: the renderer sorts by height itself).
-  pcl::PointCloud<pcl::PointXYZI> cloud() const
-  {
-    pcl::PointCloud<pcl::PointXYZI> out;
-    out.reserve(top_.size());
-    for (const auto& [key, p] : top_)
-      out.push_back(p);
-    return out;
-  }
+  /// \brief The gathered points (the renderer sorts by height itself).
+  const pcl::PointCloud<pcl::PointXYZI>& cloud() const { return top_; }
 
 private:
+  /// A tile point's cell, height and index (16 bytes: sorting them is cheap).
+  struct Cell
+  {
+    std::uint64_t key;
+    float z;
+    std::uint32_t index;
+  };
   Eigen::Matrix3f R_;
   double cell_m_ = 0.2;
-  std::unordered_map<std::uint64_t, pcl::PointXYZI> top_;
+  std::vector<Cell> cells_;
+  pcl::PointCloud<pcl::PointXYZI> top_;
 };
 
 std::atomic<bool> g_interrupted{false};
@@ -514,8 +528,7 @@ run(int argc, char** argv)
   pcd.commit();
   const std::size_t map_points = pcd.size();
   pcl_rast_tools::MapRenderInput render_input;
-  const pcl::PointCloud<pcl::PointXYZI> render_points = render_map.cloud();
-  render_input.map = &render_points;
+  render_input.map = &render_map.cloud();
   render_input.map_points_total = map_points;
   for (const auto& T : slam.framePoses())
     render_input.trajectory.push_back(R_level * T.translation());

@@ -36,33 +36,50 @@ struct VoxelSample
 {
   std::uint64_t key;
   float x, y, z, intensity;
+  std::uint32_t weight = 1; ///< points it stands for (a merged voxel mean)
 };
 
-/// Sort \a samples by voxel and append one point per voxel (centroid, mean intensity)
-/// to \a out, in key order: deterministic, and no hash map of cells.
+/// Sort \a samples by voxel and merge each run of one key into its weighted mean, in
+/// place (key order).
 void
-appendVoxelMeans(std::vector<VoxelSample>& samples, pcl::PointCloud<pcl::PointXYZI>& out)
+mergeVoxelSamples(std::vector<VoxelSample>& samples)
 {
   std::sort(samples.begin(), samples.end(), [](const VoxelSample& a, const VoxelSample& b) {
     return a.key < b.key;
   });
+  std::size_t kept = 0;
   for (std::size_t i = 0; i < samples.size();) {
-    double sx = 0.0, sy = 0.0, sz = 0.0, si = 0.0;
+    double sx = 0.0, sy = 0.0, sz = 0.0, si = 0.0, n = 0.0;
     std::size_t j = i;
     for (; j < samples.size() && samples[j].key == samples[i].key; ++j) {
-      sx += samples[j].x;
-      sy += samples[j].y;
-      sz += samples[j].z;
-      si += samples[j].intensity;
+      const double w = samples[j].weight;
+      sx += w * samples[j].x;
+      sy += w * samples[j].y;
+      sz += w * samples[j].z;
+      si += w * samples[j].intensity;
+      n += w;
     }
-    const double n = static_cast<double>(j - i);
-    pcl::PointXYZI p;
-    p.x = static_cast<float>(sx / n);
-    p.y = static_cast<float>(sy / n);
-    p.z = static_cast<float>(sz / n);
-    p.intensity = static_cast<float>(si / n);
-    out.push_back(p);
+    samples[kept++] = {samples[i].key, static_cast<float>(sx / n), static_cast<float>(sy / n),
+                       static_cast<float>(sz / n), static_cast<float>(si / n),
+                       static_cast<std::uint32_t>(n)};
     i = j;
+  }
+  samples.resize(kept);
+}
+
+/// Append one point per voxel of \a samples (centroid, mean intensity) to \a out, in
+/// key order: deterministic, and no hash map of cells.
+void
+appendVoxelMeans(std::vector<VoxelSample>& samples, pcl::PointCloud<pcl::PointXYZI>& out)
+{
+  mergeVoxelSamples(samples);
+  for (const VoxelSample& v : samples) {
+    pcl::PointXYZI p;
+    p.x = v.x;
+    p.y = v.y;
+    p.z = v.z;
+    p.intensity = v.intensity;
+    out.push_back(p);
   }
   out.width = static_cast<std::uint32_t>(out.size());
   out.height = 1;
@@ -83,7 +100,7 @@ voxelDownsample(const pcl::PointCloud<pcl::PointXYZI>& cloud, double leaf_m)
   for (const auto& p : cloud.points)
     if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z))
       samples.push_back({voxelKey(p.getVector3fMap().cast<double>(), inv_leaf), p.x, p.y, p.z,
-                         p.intensity});
+                         p.intensity, 1});
   auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
   appendVoxelMeans(samples, *out);
   return out;
@@ -719,12 +736,20 @@ SlamMap::forEachMapTile(double leaf_m, const MapTileSink& sink) const
         tiles[{tx, ty}].push_back(k);
   }
   // Per tile: every point as (voxel key, position, intensity), sorted by key, each run
-  // of one key reduced to its centroid: 24 bytes a point, a few MB per tile.
+  // of one key reduced to its centroid: 32 bytes a point, a few MB per tile. Where the
+  // drive passed many times, the samples are merged whenever they have doubled since
+  // the last merge, so a tile's memory follows its voxels, not its visits.
+  constexpr std::size_t kMinSamplesBeforeMerge = 1 << 20;
   std::vector<VoxelSample> samples;
   pcl::PointCloud<pcl::PointXYZI> out;
   for (const auto& [tile, members] : tiles) {
     samples.clear();
+    std::size_t merge_at = kMinSamplesBeforeMerge;
     for (const std::size_t k : members) {
+      if (samples.size() >= merge_at) {
+        mergeVoxelSamples(samples);
+        merge_at = std::max(kMinSamplesBeforeMerge, 2 * samples.size());
+      }
       const KeyFrameEntry& e = entries[k];
       const Eigen::Isometry3d& T = e.T_world_keyframe;
       for (const CompactCloud::Point& q : loadMapCloud(e).points) {
@@ -735,7 +760,8 @@ SlamMap::forEachMapTile(double leaf_m, const MapTileSink& sink) const
                            static_cast<float>(p.x()),
                            static_cast<float>(p.y()),
                            static_cast<float>(p.z()),
-                           q.intensity * e.intensity_scale});
+                           q.intensity * e.intensity_scale,
+                           1});
       }
     }
     if (samples.empty())

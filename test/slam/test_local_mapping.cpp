@@ -11,8 +11,11 @@
 
 #include "test_data.h"
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <filesystem>
+#include <map>
 #include <random>
 #include <set>
 #include <tuple>
@@ -352,6 +355,61 @@ TEST(SlamMap, MergedMapIsVoxelizedAndSavedAsReadablePcd)
   EXPECT_EQ(loaded.size(), coarse->size());
   EXPECT_FLOAT_EQ(loaded.points[0].intensity, 0.5f);
   EXPECT_FALSE(std::filesystem::exists(path + ".tmp"));
+}
+
+TEST(SlamMap, OftenVisitedTilesAreMergedOnTheWayWithExactMeans)
+{
+  // 36 key-frames at one place, two alternating scans of 40 k points: 1.44 M samples in
+  // one 100 m tile, past the point where the tile's samples are merged on the way.
+  auto map = std::make_shared<SlamMap>();
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> xy(10.0f, 50.0f), z(0.0f, 4.0f), intensity(0.0f, 1.0f);
+  pcl::PointCloud<pcl::PointXYZI> a, b;
+  for (int i = 0; i < 40000; ++i) {
+    pcl::PointXYZI p;
+    p.x = xy(rng);
+    p.y = xy(rng);
+    p.z = z(rng);
+    p.intensity = intensity(rng);
+    a.push_back(p);
+    p.x += 0.3f; // often another voxel of the 1 m grid
+    p.intensity = intensity(rng);
+    b.push_back(p);
+  }
+  for (KeyFrameId id = 0; id < 36; ++id) {
+    auto kf = std::make_shared<KeyFrame>();
+    kf->id = id;
+    kf->frame_index = id;
+    kf->cloud = std::make_shared<const pcl::PointCloud<pcl::PointXYZI>>(id % 2 ? b : a);
+    map->addKeyFrame(kf);
+  }
+  // The expected map: every stored point (buildMap(0) gives them all) into its voxel.
+  const double leaf = 1.0;
+  std::map<std::tuple<long, long, long>, std::array<double, 5>> sums;
+  const auto all_points = map->buildMap(0.0);
+  for (const auto& p : all_points->points) {
+    auto& acc = sums[{static_cast<long>(std::floor(p.x / leaf)), static_cast<long>(std::floor(p.y / leaf)),
+                      static_cast<long>(std::floor(p.z / leaf))}];
+    acc[0] += p.x;
+    acc[1] += p.y;
+    acc[2] += p.z;
+    acc[3] += p.intensity;
+    acc[4] += 1.0;
+  }
+  const auto merged = map->buildMap(leaf);
+  ASSERT_EQ(merged->size(), sums.size());
+  double worst_m = 0.0, worst_intensity = 0.0;
+  for (const auto& p : merged->points) {
+    const auto it = sums.find({static_cast<long>(std::floor(p.x / leaf)), static_cast<long>(std::floor(p.y / leaf)),
+                               static_cast<long>(std::floor(p.z / leaf))});
+    ASSERT_NE(it, sums.end());
+    const auto& acc = it->second;
+    worst_m = std::max({worst_m, std::abs(p.x - acc[0] / acc[4]), std::abs(p.y - acc[1] / acc[4]),
+                        std::abs(p.z - acc[2] / acc[4])});
+    worst_intensity = std::max(worst_intensity, std::abs(p.intensity - acc[3] / acc[4]));
+  }
+  EXPECT_LT(worst_m, 1e-4);
+  EXPECT_LT(worst_intensity, 1e-4);
 }
 
 } // namespace
