@@ -264,6 +264,11 @@ LoopDetectorParams::isValid(std::string* why) const
       << dense_inlier_distance_m;
   else if (!positive(max_dense_rmse_m))
     r << "max_dense_rmse_m must be finite and > 0, got " << max_dense_rmse_m;
+  else if (final_refinement && !final_refine.isValid(&sub))
+    r << "final_refine: " << sub;
+  else if (final_refinement && (!positive(final_max_change_m) || !positive(final_max_change_deg)))
+    r << "final_max_change_m and final_max_change_deg must be > 0, got " << final_max_change_m
+      << ", " << final_max_change_deg;
   else if (!non_negative(max_odometry_deviation_m))
     r << "max_odometry_deviation_m must be finite and >= 0, got "
       << max_odometry_deviation_m;
@@ -751,6 +756,32 @@ LoopDetector::detect(const KeyFrame& query, const Pose3d& T_world_query) const
   return out;
 }
 
+void
+LoopDetector::refineAccepted(const KeyFrame& query,
+                             const PointToPlaneTarget& target,
+                             LoopVerification& v) const
+{
+  if (!params_.final_refinement || !query.cloud)
+    return;
+  PointToPlaneResult r;
+  try {
+    r = refinePointToPlane(*query.cloud, target, v.T_candidate_query, params_.final_refine);
+  } catch (const std::invalid_argument&) {
+    return;
+  }
+  if (!r.success)
+    return;
+  const Pose3d delta = v.T_candidate_query.inverse() * r.T_target_source;
+  const double change_m = delta.translation().norm();
+  const double change_deg = Eigen::AngleAxisd(delta.rotation()).angle() * kDegPerRad;
+  if (change_m > params_.final_max_change_m || change_deg > params_.final_max_change_deg)
+    return;
+  v.T_candidate_query = r.T_target_source;
+  v.refined = true;
+  v.refinement_change_m = change_m;
+  v.refinement_change_deg = change_deg;
+}
+
 // ---------------------------------------------------------------- verification
 
 LoopVerification
@@ -1023,6 +1054,7 @@ LoopDetector::verifyPair(const KeyFrame& query,
       return reject(
           format("dense rmse %.3f m > %.3f m", v.dense_rmse_m, params_.max_dense_rmse_m));
     v.T_candidate_query = T;
+    refineAccepted(query, target, v);
   }
 
   v.accepted = true;
