@@ -88,6 +88,9 @@ run(int argc, char** argv)
               &params.dense.max_iterations);
   args.addInt("dense-points", "source points of the refinement, at most",
               &params.dense.max_source_points);
+  args.addInt("young-map-scans",
+              "every tracked scan joins the local map while it holds fewer (1: key-frames only)",
+              &params.dense.young_map_scans);
   if (!args.parse(argc, argv))
     return kExitOk;
 
@@ -112,6 +115,8 @@ run(int argc, char** argv)
       p.dense.max_iterations = cli_params.dense.max_iterations;
     if (args.given("dense-points"))
       p.dense.max_source_points = cli_params.dense.max_source_points;
+    if (args.given("young-map-scans"))
+      p.dense.young_map_scans = cli_params.dense.young_map_scans;
     p.registration.refine = !no_refine;
     if (no_loose_rematch)
       p.loose_rematch = false;

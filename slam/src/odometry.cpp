@@ -242,6 +242,8 @@ DenseTrackingParams::isValid(std::string* why) const
     reason = "min_correspondences must be >= 6";
   else if (!finitePositive(max_correction_m) || !finitePositive(max_correction_deg))
     reason = "max_correction_m and max_correction_deg must be > 0";
+  else if (young_map_scans < 1)
+    reason = "young_map_scans must be >= 1, got " + std::to_string(young_map_scans);
   if (why)
     *why = reason;
   return reason.empty();
@@ -331,6 +333,7 @@ struct Odometry::Impl
   SACGroundRemoval ground;
   OrbRasterFeatureEstimator orb;
   VoxelPlaneMap map;
+  int map_scans = 0; ///< scans inserted into the map so far
 
   // The key-frame tracked against. Only its immutable parts (features) are read:
   // its pose may be corrected by the back end, tracking keeps its own copy.
@@ -371,6 +374,8 @@ struct Odometry::Impl
   makeKeyFrame(const OdometryFrameResult& result,
                RasterFeatureSet&& features,
                const pcl::PointCloud<pcl::PointXYZI>& cloud);
+  void
+  insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud, const Pose3d& T_world_lidar);
 };
 
 Pose3d
@@ -457,18 +462,27 @@ Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
   voxels->is_dense = true;
   kf->cloud = voxels;
 
-  // ... and a denser one for the local map, so that a single key-frame already gives
-  // every map voxel on a surface enough points for a plane (4 x 4 per voxel face).
-  const Eigen::Isometry3f T = result.T_world_lidar.cast<float>();
+  insertIntoMap(cloud, result.T_world_lidar);
+  keyframe = kf;
+  T_world_keyframe = result.T_world_lidar;
+  return kf;
+}
+
+/// The scan into the local map, denser than a key-frame's cloud, so that a single scan
+/// already gives every map voxel on a surface enough points for a plane (4 x 4 per
+/// voxel face).
+void
+Odometry::Impl::insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                              const Pose3d& T_world_lidar)
+{
+  const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
+  const Eigen::Isometry3f T = T_world_lidar.cast<float>();
   Points3f points_world;
   for (const int i : odometry_detail::voxelDownsampleIndices(
            cloud, params.dense.map_voxel_size_m / 4.0, in_range))
     points_world.push_back(T * cloud.points[i].getVector3fMap());
   map.insert(points_world, T.translation());
-
-  keyframe = kf;
-  T_world_keyframe = result.T_world_lidar;
-  return kf;
+  ++map_scans;
 }
 
 OdometryFrameResult
@@ -783,6 +797,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
       result.message += "; re-anchored: new key-frame after a stretch without tracking";
     }
   }
+  if (!result.keyframe && tracked && result.refined && map_scans < params.dense.young_map_scans)
+    insertIntoMap(*cloud, result.T_world_lidar);
   result.timings.keyframe_ms = msSince(start);
   if (tracked && !result.keyframe) {
     last_features = features;
