@@ -325,6 +325,7 @@ run(int argc, char** argv)
   int first = 0, last = -1, stride = 1;
   bool no_loop = !defaults.loop_closing.enable;
   bool no_revisit_culling = !defaults.loop_closing.cull_revisits;
+  int young_map_scans = defaults.odometry.dense.young_map_scans;
   bool no_ba = false;
   bool ba = false;
   bool global_ba = defaults.loop_closing.global_bundle_adjustment;
@@ -362,6 +363,10 @@ run(int argc, char** argv)
                    "global bundle adjustment after each pose-graph optimisation "
                    "(comparison, slow)",
                    &global_ba);
+  parser.addInt("young-map-scans",
+                "tracking: every scan joins the local map while it holds fewer (1: key-frames "
+                "only; see doc/odometry.md)",
+                &young_map_scans);
   parser.addDouble("map-leaf", "voxel size of map.pcd [m]", &map_leaf_m);
   parser.addSwitch("software-render", "render.png with OpenCV instead of VTK (faster)",
                    &software_render);
@@ -374,6 +379,9 @@ run(int argc, char** argv)
     throw std::invalid_argument("bad frame range: -first " + std::to_string(first) +
                                 " -last " + std::to_string(last) + " -stride " +
                                 std::to_string(stride));
+  if (young_map_scans < 1)
+    throw std::invalid_argument("-young-map-scans must be >= 1, got " +
+                                std::to_string(young_map_scans));
   if (!(map_leaf_m > 0.0))
     throw std::invalid_argument("-map-leaf must be > 0, got " + std::to_string(map_leaf_m));
   if (ba && no_ba)
@@ -415,6 +423,8 @@ run(int argc, char** argv)
       pcl_rast_tools::resolveSensorPreset(sensor, reader, sensor_reason);
   std::cerr << "Sensor preset " << rast::toString(preset) << " (" << sensor_reason << ")\n";
   rast::applySensorPreset(preset, params.odometry);
+  if (parser.given("young-map-scans"))
+    params.odometry.dense.young_map_scans = young_map_scans;
   if (!params.isValid(&why))
     throw std::logic_error("sensor preset made invalid parameters: " + why);
 
@@ -596,6 +606,7 @@ run(int argc, char** argv)
                        {"sensor_choice", sensor_reason},
                        {"loop_closure", params.loop_closing.enable},
                        {"revisit_culling", params.loop_closing.cull_revisits},
+                       {"young_map_scans", params.odometry.dense.young_map_scans},
                        {"local_ba", params.local_mapping.enable_bundle_adjustment},
                        {"global_ba", params.loop_closing.global_bundle_adjustment},
                        {"map_leaf_m", map_leaf_m},

@@ -159,8 +159,15 @@ TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
                         "/o' -stride 0",
                     log_),
             1);
+  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + dir_.string() +
+                        "/o' -young-map-scans 0",
+                    log_),
+            1);
+  EXPECT_NE(readText(log_).find("-young-map-scans must be >= 1, got 0"), std::string::npos);
+  EXPECT_FALSE(std::filesystem::exists(dir_ / "o" / "summary.json")) << "no work before the check";
   EXPECT_EQ(runTool("-h", log_), 0);
   EXPECT_NE(readText(log_).find("-map-leaf"), std::string::npos);
+  EXPECT_NE(readText(log_).find("-no-revisit-culling"), std::string::npos);
 }
 
 } // namespace
