@@ -447,6 +447,7 @@ Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
       keyframe ? Pose3d(T_world_keyframe.inverse() * result.T_world_lidar) : Pose3d::Identity();
   kf->features = std::move(features);
   kf->map_point_ids.assign(kf->features.size(), kNoMapPoint);
+  kf->odometry_map_scans = map_scans;
 
   // The voxelized scan the key-frame keeps (memory: keyframe_voxel_size_m) ...
   const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);

@@ -114,11 +114,19 @@ diagonalInformation(double sigma_t_m, double sigma_r_rad)
 }
 
 Eigen::Matrix<double, 6, 6>
-odometryInformation(const Pose3d& T_prev_kf, const LoopClosingParams& p)
+odometryInformation(const Pose3d& T_prev_kf, int map_scans, const LoopClosingParams& p)
 {
   const double d = T_prev_kf.translation().norm();
-  return diagonalInformation(p.odometry_sigma_t_base_m + p.odometry_sigma_t_per_m * d,
-                             p.odometry_sigma_r_base_rad + p.odometry_sigma_r_per_m_rad * d);
+  double young = 1.0;
+  if (p.young_map_scans > 1 && map_scans < p.young_map_scans) {
+    const double maturity = std::clamp(static_cast<double>(map_scans - 1) /
+                                           static_cast<double>(p.young_map_scans - 1),
+                                       0.0, 1.0);
+    young = p.young_map_sigma_scale + (1.0 - p.young_map_sigma_scale) * maturity;
+  }
+  return diagonalInformation(
+      young * (p.odometry_sigma_t_base_m + p.odometry_sigma_t_per_m * d),
+      young * (p.odometry_sigma_r_base_rad + p.odometry_sigma_r_per_m_rad * d));
 }
 
 Eigen::Matrix<double, 6, 6>
@@ -158,6 +166,10 @@ LoopClosingParams::isValid(std::string* why) const
   else if (revisit_anchor_keyframes < 0)
     reason = "revisit_anchor_keyframes must be >= 0, got " +
              std::to_string(revisit_anchor_keyframes);
+  else if (!(young_map_sigma_scale >= 1.0 && std::isfinite(young_map_sigma_scale)))
+    reason = "young_map_sigma_scale must be >= 1, got " + std::to_string(young_map_sigma_scale);
+  else if (young_map_scans < 1)
+    reason = "young_map_scans must be >= 1, got " + std::to_string(young_map_scans);
   else if (global_ba_max_iterations < 1)
     reason = "global_ba_max_iterations must be >= 1, got " +
              std::to_string(global_ba_max_iterations);
@@ -218,7 +230,7 @@ globalBundleAdjustment(std::map<KeyFrameId, Pose3d>& poses,
     const Pose3d T = keyframes[id]->T_previous_keyframe;
     problem.pose_constraints.push_back(
         {static_cast<KeyFrameId>(id - 1), static_cast<KeyFrameId>(id), T,
-         odometryInformation(T, loop_params).cwiseSqrt()});
+         odometryInformation(T, keyframes[id]->odometry_map_scans, loop_params).cwiseSqrt()});
   }
   for (const LoopEdge& e : loops)
     if (e.active && problem.poses.count(e.candidate) && problem.poses.count(e.query))
@@ -451,15 +463,20 @@ struct RastSlam::Impl
       return;
     std::vector<LoopEdge> loops = map->loopEdges();
     std::vector<std::size_t> dropped;
+    std::vector<int> map_scans(n, 0);
+    for (std::size_t id = 0; id < n; ++id)
+      map_scans[id] = map->keyFrame(static_cast<KeyFrameId>(id))->odometry_map_scans;
     PoseGraph graph;
     for (int attempt = 0; attempt < 4; ++attempt) {
       graph = PoseGraph();
       for (std::size_t id = 0; id < n; ++id)
         graph.addNode(static_cast<int>(id), poses[id], id == 0);
       for (std::size_t id = 1; id < n; ++id) {
-        const Pose3d T = map->odometryEdge(static_cast<KeyFrameId>(id));
+        const auto kf_id = static_cast<KeyFrameId>(id);
+        const Pose3d T = map->odometryEdge(kf_id);
         graph.addEdge(static_cast<int>(id - 1), static_cast<int>(id), T,
-                      odometryInformation(T, params.loop_closing), PoseGraphEdgeType::kOdometry);
+                      odometryInformation(T, map_scans[id], params.loop_closing),
+                      PoseGraphEdgeType::kOdometry);
       }
       std::vector<std::size_t> loop_of_edge; // edge index -> loop index
       for (std::size_t k = 0; k < loops.size(); ++k) {

@@ -43,6 +43,14 @@ struct LoopClosingParams
   double odometry_sigma_t_per_m = 0.01;
   double odometry_sigma_r_base_rad = 0.001;
   double odometry_sigma_r_per_m_rad = 0.0005;
+  /// ... times a factor for key-frames that tracking registered against a young local
+  /// map of n < young_map_scans scans: young_map_sigma_scale for n <= 1, falling linearly
+  /// to 1 at young_map_scans. The first frames of a drive are the chain's weakest
+  /// links (a VLP-16 start rotates ~2 deg wrong over its first 10 frames, later frames
+  /// ~0.02 deg each); with equal sigmas a loop back to the start spreads the correction
+  /// over the whole loop instead of putting it there. 1: equal sigmas.
+  double young_map_sigma_scale = 10.0;
+  int young_map_scans = 10;
   /// Loop edges: sigma at reference_inliers inliers, scaled by sqrt(reference / inliers).
   double loop_sigma_t_m = 0.1;
   double loop_sigma_r_rad = 0.005;
