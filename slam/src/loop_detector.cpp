@@ -487,7 +487,6 @@ LoopDetector::coveringKeyFrame(const KeyFrame& query,
                                 std::to_string(angle_deg) + ") must be positive");
   std::shared_lock<std::shared_mutex> lock(mutex_);
   const std::vector<char> eligible = eligibleSlots(query, travelTo(query, T_world_query));
-  const double max_angle_rad = angle_deg * EIGEN_PI / 180.0;
   std::optional<KeyFrameId> best;
   double best_distance = radius_m;
   for (std::size_t s = 0; s < entries_.size(); ++s) {
@@ -497,8 +496,7 @@ LoopDetector::coveringKeyFrame(const KeyFrame& query,
     const double d = (T.translation() - T_world_query.translation()).norm();
     if (d > best_distance)
       continue;
-    const Eigen::AngleAxisd rotation(T.rotation().transpose() * T_world_query.rotation());
-    if (rotation.angle() > max_angle_rad)
+    if (rotationDeg(T.inverse() * T_world_query) > angle_deg)
       continue;
     best_distance = d;
     best = entries_[s].keyframe->id;
@@ -773,7 +771,7 @@ LoopDetector::refineAccepted(const KeyFrame& query,
     return;
   const Pose3d delta = v.T_candidate_query.inverse() * r.T_target_source;
   const double change_m = delta.translation().norm();
-  const double change_deg = Eigen::AngleAxisd(delta.rotation()).angle() * kDegPerRad;
+  const double change_deg = rotationDeg(delta);
   if (change_m > params_.final_max_change_m || change_deg > params_.final_max_change_deg)
     return;
   v.T_candidate_query = r.T_target_source;

@@ -463,9 +463,7 @@ struct RastSlam::Impl
       return;
     std::vector<LoopEdge> loops = map->loopEdges();
     std::vector<std::size_t> dropped;
-    std::vector<int> map_scans(n, 0);
-    for (std::size_t id = 0; id < n; ++id)
-      map_scans[id] = map->keyFrame(static_cast<KeyFrameId>(id))->odometry_map_scans;
+    const std::vector<KeyFrame::Ptr> keyframes = map->keyFrames(); // at least the n posed
     PoseGraph graph;
     for (int attempt = 0; attempt < 4; ++attempt) {
       graph = PoseGraph();
@@ -475,7 +473,8 @@ struct RastSlam::Impl
         const auto kf_id = static_cast<KeyFrameId>(id);
         const Pose3d T = map->odometryEdge(kf_id);
         graph.addEdge(static_cast<int>(id - 1), static_cast<int>(id), T,
-                      odometryInformation(T, map_scans[id], params.loop_closing),
+                      odometryInformation(T, keyframes[id]->odometry_map_scans,
+                                          params.loop_closing),
                       PoseGraphEdgeType::kOdometry);
       }
       std::vector<std::size_t> loop_of_edge; // edge index -> loop index

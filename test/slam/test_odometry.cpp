@@ -52,6 +52,20 @@ takeFrames(const rast::LidarSimulator& sim, std::size_t first, std::size_t last,
   return seq;
 }
 
+/// Scans first, first + every, ... <= last of a drive along \a T_world_body simulated
+/// with \a params (two ray-casting threads).
+Sequence
+simulateFrames(const rast::PoseVector& T_world_body,
+               rast::LidarSimulatorParams params,
+               std::size_t first,
+               std::size_t last,
+               std::size_t every)
+{
+  params.num_threads = 2;
+  const rast::LidarSimulator sim(params, T_world_body);
+  return takeFrames(sim, first, last, every);
+}
+
 Sequence
 simulate(const rast::PoseVector& T_world_body,
          std::size_t every = 1,
@@ -61,9 +75,7 @@ simulate(const rast::PoseVector& T_world_body,
   rast::LidarSimulatorParams params;
   params.world = world;
   params.seed = seed;
-  params.num_threads = 2;
-  const rast::LidarSimulator sim(params, T_world_body);
-  return takeFrames(sim, 0, sim.numFrames() - 1, every);
+  return simulateFrames(T_world_body, params, 0, T_world_body.size() - 1, every);
 }
 
 /// A city drive at 10 m/s, 10 Hz: straight, a 90 deg left turn, straight.
@@ -322,10 +334,7 @@ TEST(OdometryRealData, ColdStartDownAStreetIsBackedByGuidedFeatures)
   // The world is made around the whole trajectory, as pcl_rast_simulate -traj makes it.
   const rast::PoseVector path = kittiBodyPath(data, "02");
   ASSERT_GT(path.size(), 20u);
-  rast::LidarSimulatorParams sim_params;
-  sim_params.num_threads = 2;
-  const rast::LidarSimulator sim(sim_params, path);
-  const Sequence seq = takeFrames(sim, 0, 15, 5); // 2 Hz
+  const Sequence seq = simulateFrames(path, {}, 0, 15, 5); // 2 Hz
 
   auto firstFrameError = [&seq](const rast::OdometryParams& params, rast::OdometryFrameResult& r) {
     rast::Odometry odometry(params);
@@ -358,10 +367,7 @@ TEST(OdometryRealData, HillsideFallbackIsRefittedFromGuidedFeatures)
   PCL_RAST_REQUIRE_SHARED_DATA(data);
   const rast::PoseVector path = kittiBodyPath(data, "10");
   ASSERT_GT(path.size(), 600u);
-  rast::LidarSimulatorParams sim_params;
-  sim_params.num_threads = 2;
-  const rast::LidarSimulator sim(sim_params, path);
-  const Sequence seq = takeFrames(sim, 500, 600, 5); // 2 Hz
+  const Sequence seq = simulateFrames(path, {}, 500, 600, 5); // 2 Hz
   auto worstFrameDeg = [&seq](const rast::OdometryParams& params, int& fallbacks) {
     rast::Odometry odometry(params);
     const auto results = run(odometry, seq);
@@ -717,12 +723,10 @@ TEST(OdometryRealData, Vlp16WeakFeaturesTakeHeightAndTiltFromThePrior)
   ASSERT_GT(lidar.size(), 150u);
   // As pcl_rast_simulate -traj 07.txt -sensor vlp16 makes it (scripts/eval_odometry.sh).
   const rast::PoseVector path(lidar.begin(), lidar.begin() + 150);
-  rast::LidarSimulatorParams sim_params;
-  sim_params.sensor = rast::SensorModel::kVlp16;
-  sim_params.seed = 1;
-  sim_params.num_threads = 2;
-  const rast::LidarSimulator sim(sim_params, path);
-  const Sequence seq = takeFrames(sim, 0, sim.numFrames() - 1, 1);
+  rast::LidarSimulatorParams vlp16;
+  vlp16.sensor = rast::SensorModel::kVlp16;
+  vlp16.seed = 1;
+  const Sequence seq = simulateFrames(path, vlp16, 0, path.size() - 1, 1);
   rast::OdometryParams params;
   rast::applySensorPreset(rast::SensorPreset::kVlp16, params);
   rast::OdometryParams without = params;
@@ -759,12 +763,10 @@ TEST(Odometry, YoungMapTakesEveryScanSoTheStartDoesNotTilt)
   params.dense.young_map_scans = 10;
   double sum_young = 0.0, sum_old = 0.0;
   for (std::uint64_t seed = 1; seed <= 4; ++seed) {
-    rast::LidarSimulatorParams sim_params;
-    sim_params.sensor = rast::SensorModel::kVlp16;
-    sim_params.seed = seed;
-    sim_params.num_threads = 2;
-    const rast::LidarSimulator sim(sim_params, drivePath(300));
-    const Sequence seq = takeFrames(sim, 0, 30, 1);
+    rast::LidarSimulatorParams vlp16;
+    vlp16.sensor = rast::SensorModel::kVlp16;
+    vlp16.seed = seed;
+    const Sequence seq = simulateFrames(drivePath(300), vlp16, 0, 30, 1);
     auto rotationAfter = [&seq](const rast::OdometryParams& p) {
       rast::Odometry odometry(p);
       const auto results = run(odometry, seq);

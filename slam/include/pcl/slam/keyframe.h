@@ -42,8 +42,9 @@ struct KeyFrame
   /// Relative motion from the previous key-frame as measured by tracking (odometry edge
   /// of the pose graph); identity for the first key-frame.
   Pose3d T_previous_keyframe = Pose3d::Identity();
-  /// Scans in tracking's local map when this key-frame's pose was registered against it
-  /// (0 for the first): a young map is a weaker reference (LoopClosingParams).
+  /// Scans tracking had put into its local map when this key-frame's pose was registered
+  /// against it (0 for the first; a count, not what the map still holds): a young map
+  /// is a weaker reference (LoopClosingParams::young_map_sigma_scale).
   int odometry_map_scans = 0;
 
   /// ORB features; points in this key-frame's LiDAR frame, descriptors index-aligned.
