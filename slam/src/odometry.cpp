@@ -390,7 +390,7 @@ Odometry::Impl::predict(double timestamp_s) const
   double ratio = 1.0;
   if (std::isfinite(dt_prev) && std::isfinite(dt) && dt_prev > 1e-6 && dt > 0.0)
     ratio = std::min(dt / dt_prev, 5.0);
-  return T_world_last * scaleMotion(T_world_before.inverse() * T_world_last, ratio);
+  return composePoses(T_world_last, scaleMotion(T_world_before.inverse() * T_world_last, ratio));
 }
 
 double
@@ -417,7 +417,7 @@ Odometry::Impl::commitPose(const OdometryFrameResult& result)
 {
   T_world_before = T_world_last;
   t_before = t_last;
-  T_world_last = result.T_world_lidar;
+  T_world_last = normalizedPose(result.T_world_lidar);
   t_last = result.timestamp_s;
   ++num_poses;
   ++frames_since_keyframe;
@@ -443,8 +443,8 @@ Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
   kf->frame_index = result.frame_index;
   kf->timestamp_s = result.timestamp_s;
   kf->T_world_keyframe = result.T_world_lidar;
-  kf->T_previous_keyframe =
-      keyframe ? Pose3d(T_world_keyframe.inverse() * result.T_world_lidar) : Pose3d::Identity();
+  kf->T_previous_keyframe = keyframe ? composePoses(T_world_keyframe.inverse(), result.T_world_lidar)
+                                     : Pose3d::Identity();
   kf->features = std::move(features);
   kf->map_point_ids.assign(kf->features.size(), kNoMapPoint);
   kf->odometry_map_scans = map_scans;
@@ -776,9 +776,18 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   }
   result.timings.refine_ms = msSince(start);
 
-  // 6. Key-frame decision: the paper's rule (sec. 7.3) plus safety rules.
+  // 6. Key-frame decision: the paper's rule (sec. 7.3) plus safety rules. The pose is
+  //    final here; it is kept on SO(3) (single-precision steps add ~1e-7 each).
   start = Clock::now();
-  result.T_keyframe_lidar = T_world_keyframe.inverse() * result.T_world_lidar;
+  if (!result.T_world_lidar.matrix().allFinite()) {
+    // A degenerate solve must not reach the map and the pose graph: predict instead.
+    result.T_world_lidar = T_world_prior;
+    result.status = TrackingStatus::kConstantVelocity;
+    result.degraded = true;
+    result.message += "; non-finite estimate: constant-velocity prediction";
+  }
+  result.T_world_lidar = normalizedPose(result.T_world_lidar);
+  result.T_keyframe_lidar = composePoses(T_world_keyframe.inverse(), result.T_world_lidar);
   const bool tracked = result.status == TrackingStatus::kFeatures ||
                        (result.status == TrackingStatus::kDenseFallback && result.refined);
   const int frames_since = frames_since_keyframe + 1;
@@ -868,7 +877,7 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
   }
   if (!result.keyframe) {
     result.reference_keyframe = impl_->keyframe ? impl_->keyframe->id : 0;
-    result.T_keyframe_lidar = impl_->T_world_keyframe.inverse() * result.T_world_lidar;
+    result.T_keyframe_lidar = composePoses(impl_->T_world_keyframe.inverse(), result.T_world_lidar);
   }
   result.timings.total_ms = std::chrono::duration<double, std::milli>(Clock::now() - start).count();
   impl_->commitPose(result);
@@ -892,7 +901,7 @@ Odometry::Impl::skip(double timestamp_s, std::size_t frame_index, const std::str
   result.degraded = true;
   result.T_world_lidar = predict(timestamp_s);
   result.reference_keyframe = keyframe ? keyframe->id : 0;
-  result.T_keyframe_lidar = T_world_keyframe.inverse() * result.T_world_lidar;
+  result.T_keyframe_lidar = composePoses(T_world_keyframe.inverse(), result.T_world_lidar);
   result.message = reason + ": constant-velocity prediction";
   commitPose(result);
   return result;

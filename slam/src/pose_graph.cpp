@@ -62,25 +62,18 @@ checkFinitePosition(const Eigen::Vector3d& p, const std::string& where)
                                 " is not finite");
 }
 
-/// Split an isometry into translation and unit quaternion, checking it is rigid.
+/// Split an isometry into translation and unit quaternion. A pose handed in through the
+/// API is judged as input from outside (rigid_pose.h): within kRotationTolerance of a
+/// rotation it is projected onto SE(3), further off it is rejected.
 void
 splitPose(const Pose3d& T,
           const std::string& where,
           Eigen::Vector3d& p,
           Eigen::Quaterniond& q)
 {
-  const Eigen::Matrix3d R = T.linear();
-  if (!T.matrix().allFinite())
-    throw std::invalid_argument(where + ": pose matrix is not finite");
-  const double orthogonality =
-      (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
-  if (orthogonality > 1e-6 || R.determinant() < 0.0)
-    throw std::invalid_argument(where +
-                                ": rotation block is not a rotation (|R^T R - I| = " +
-                                std::to_string(orthogonality) +
-                                ", det = " + std::to_string(R.determinant()) + ")");
-  p = T.translation();
-  q = Eigen::Quaterniond(R).normalized();
+  const Pose3d rigid = checkedRigidPose(T, where);
+  p = rigid.translation();
+  q = Eigen::Quaterniond(rigid.linear()).normalized();
 }
 
 /// Check that \a information is finite, symmetric and positive semi-definite.
@@ -259,7 +252,7 @@ Pose3d
 PoseGraphNode::pose() const
 {
   Pose3d T = Pose3d::Identity();
-  T.linear() = q_world_node.toRotationMatrix();
+  T.linear() = q_world_node.normalized().toRotationMatrix();
   T.translation() = p_world_node;
   return T;
 }
@@ -268,7 +261,7 @@ Pose3d
 PoseGraphEdge::measurement() const
 {
   Pose3d T = Pose3d::Identity();
-  T.linear() = q_from_to.toRotationMatrix();
+  T.linear() = q_from_to.normalized().toRotationMatrix();
   T.translation() = t_from_to;
   return T;
 }

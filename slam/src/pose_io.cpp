@@ -1,7 +1,6 @@
 /// \file pose_io.cpp
 /// \brief KITTI / TUM pose files and the KITTI camera <-> LiDAR frame change.
 
-#include <Eigen/SVD>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -19,8 +18,6 @@ namespace pcl {
 namespace rast {
 namespace {
 
-/// Tolerance on ||R^T R - I|| (max abs entry) and |det R - 1| for a rotation block.
-constexpr double kRotationTolerance = 1e-3;
 /// Tolerance on | |q| - 1 | for a TUM quaternion (files often carry 4-6 decimals).
 constexpr double kQuaternionNormTolerance = 1e-2;
 
@@ -84,30 +81,15 @@ parseNumbers(const std::vector<std::string>& tokens,
   return values;
 }
 
-/// The pose of a row-major 3x4 block; the rotation is checked and re-orthonormalized.
-/// Returns false with \a why when the block is not a rotation within tolerance.
+/// The pose of a row-major 3x4 block, projected onto SE(3) (rigid_pose.h); false with
+/// \a why when the block is further than kRotationTolerance from a rotation.
 bool
 poseFromRowMajor3x4(const double* v, Pose3d* pose, std::string* why)
 {
-  Eigen::Matrix3d R;
-  R << v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10];
-  const double det = R.determinant();
-  const double ortho =
-      (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
-  if (std::abs(det - 1.0) > kRotationTolerance || ortho > kRotationTolerance) {
-    std::ostringstream msg;
-    msg << "rotation block is not a rotation (det " << det << ", max |R^T R - I| "
-        << ortho << ", tolerance " << kRotationTolerance << ")";
-    *why = msg.str();
-    return false;
-  }
-  // Nearest rotation in the Frobenius norm: U V^T (det is positive here).
-  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(R,
-                                              Eigen::ComputeFullU | Eigen::ComputeFullV);
-  pose->setIdentity();
-  pose->linear() = svd.matrixU() * svd.matrixV().transpose();
-  pose->translation() << v[3], v[7], v[11];
-  return true;
+  Pose3d T = Pose3d::Identity();
+  T.linear() << v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10];
+  T.translation() << v[3], v[7], v[11];
+  return projectToRigid(T, pose, why);
 }
 
 std::string

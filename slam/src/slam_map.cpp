@@ -283,10 +283,11 @@ SlamMap::addKeyFrame(const KeyFrame::Ptr& kf)
                                 std::to_string(kf->id));
   KeyFrameEntry entry;
   entry.kf = kf;
-  entry.T_previous_keyframe = kf->T_previous_keyframe;
-  entry.T_world_keyframe = keyframes_.empty()
-                               ? kf->T_world_keyframe
-                               : keyframes_.back().T_world_keyframe * kf->T_previous_keyframe;
+  // Poses are kept on SO(3): thousands of composed steps must not drift off it.
+  entry.T_previous_keyframe = normalizedPose(kf->T_previous_keyframe);
+  entry.T_world_keyframe =
+      keyframes_.empty() ? normalizedPose(kf->T_world_keyframe)
+                         : composePoses(keyframes_.back().T_world_keyframe, entry.T_previous_keyframe);
   entry.map_cloud = stored;
   entry.intensity_scale = map_cloud.intensity_scale;
   entry.map_cloud_radius_m = radius_m;
@@ -299,12 +300,14 @@ void
 SlamMap::addFrame(const FrameRecord& record)
 {
   std::lock_guard<std::mutex> lock(mutex_);
-  if (!record.skipped && record.reference_keyframe >= keyframes_.size())
+  if (!record.skipped && record.reference_keyframe != kNoKeyFrame &&
+      record.reference_keyframe >= keyframes_.size())
     throw std::invalid_argument("SlamMap::addFrame: frame " +
                                 std::to_string(record.frame_index) +
                                 " references unknown key-frame " +
                                 std::to_string(record.reference_keyframe));
   frames_.push_back(record);
+  frames_.back().T_keyframe_lidar = normalizedPose(record.T_keyframe_lidar);
 }
 
 std::size_t
@@ -435,7 +438,7 @@ SlamMap::setOdometryEdges(const std::map<KeyFrameId, Pose3d>& T_previous_keyfram
   std::lock_guard<std::mutex> lock(mutex_);
   for (const auto& [id, T] : T_previous_keyframe)
     if (id < keyframes_.size() && id > 0)
-      keyframes_[id].T_previous_keyframe = T;
+      keyframes_[id].T_previous_keyframe = normalizedPose(T);
 }
 
 void
@@ -448,15 +451,16 @@ SlamMap::applyPosesLocked(const std::map<KeyFrameId, Pose3d>& poses, bool propag
   for (const auto& [id, T_new] : poses) {
     if (id >= keyframes_.size())
       continue;
-    delta[id] = T_new * keyframes_[id].T_world_keyframe.inverse();
-    keyframes_[id].T_world_keyframe = T_new;
+    const Pose3d T_rigid = normalizedPose(T_new);
+    delta[id] = composePoses(T_rigid, keyframes_[id].T_world_keyframe.inverse());
+    keyframes_[id].T_world_keyframe = T_rigid;
   }
   if (delta.empty())
     return;
   if (propagate_to_newer) {
     const auto& [last_id, last_delta] = *delta.rbegin();
     for (std::size_t id = last_id + 1; id < keyframes_.size(); ++id) {
-      keyframes_[id].T_world_keyframe = last_delta * keyframes_[id].T_world_keyframe;
+      keyframes_[id].T_world_keyframe = composePoses(last_delta, keyframes_[id].T_world_keyframe);
       delta[static_cast<KeyFrameId>(id)] = last_delta;
     }
   }
@@ -658,6 +662,7 @@ SlamMap::addLoopEdge(const LoopEdge& edge)
 {
   std::lock_guard<std::mutex> lock(mutex_);
   loop_edges_.push_back(edge);
+  loop_edges_.back().T_candidate_query = normalizedPose(edge.T_candidate_query);
 }
 
 void
@@ -689,7 +694,7 @@ SlamMap::framePoses() const
   out.reserve(frames_.size());
   for (const auto& f : frames_) {
     if (f.reference_keyframe < keyframes_.size())
-      out.push_back(keyframes_[f.reference_keyframe].T_world_keyframe * f.T_keyframe_lidar);
+      out.push_back(composePoses(keyframes_[f.reference_keyframe].T_world_keyframe, f.T_keyframe_lidar));
     else
       out.push_back(f.T_keyframe_lidar);
   }

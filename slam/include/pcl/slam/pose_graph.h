@@ -60,8 +60,10 @@ struct PoseGraphEdge
 class PoseGraph
 {
 public:
-  /// \brief Add a node. \throws std::invalid_argument on a duplicate id or a
-  /// non-finite / non-unit pose, naming the value.
+  /// \brief Add a node. A pose whose rotation block is within kRotationTolerance
+  /// (rigid_pose.h) of a rotation is projected onto SE(3); a quaternion within 1e-3 of
+  /// unit norm is normalized. \throws std::invalid_argument on a duplicate id or a
+  /// pose further off or non-finite, naming the value.
   void addNode(int id, const Pose3d& T_world_node, bool fixed = false);
   void addNode(int id,
                const Eigen::Vector3d& p_world_node,

@@ -4,7 +4,7 @@
 /// (`t x y z qx qy qz qw`) pose files, and the KITTI camera-0 <-> LiDAR frame change.
 /// \ingroup slam
 
-#include <Eigen/Geometry>
+#include <pcl/slam/rigid_pose.h>
 
 #include <cstdio>
 #include <functional>
@@ -13,11 +13,6 @@
 
 namespace pcl {
 namespace rast {
-
-/// \brief A rigid transform; by convention named after its frames, e.g. T_world_lidar.
-using Pose3d = Eigen::Isometry3d;
-/// \brief A sequence of poses, one per frame, with Eigen's aligned allocator.
-using PoseVector = std::vector<Pose3d, Eigen::aligned_allocator<Pose3d>>;
 
 /// \brief Pose file formats.
 enum class PoseFormat

@@ -51,12 +51,17 @@ struct MapPoint
   std::vector<MapPointObservation> observations;
 };
 
+/// \brief FrameRecord::reference_keyframe of a frame before the first key-frame.
+constexpr KeyFrameId kNoKeyFrame = static_cast<KeyFrameId>(-1);
+
 /// \brief What happened to one input frame.
 struct FrameRecord
 {
   std::size_t frame_index = 0;
   double timestamp_s = 0.0;
-  KeyFrameId reference_keyframe = 0;                ///< tracked against this key-frame
+  /// Tracked against this key-frame; kNoKeyFrame before the first key-frame (leading
+  /// empty or unusable scans), and T_keyframe_lidar is then the frame's world pose.
+  KeyFrameId reference_keyframe = 0;
   Pose3d T_keyframe_lidar = Pose3d::Identity();     ///< pose relative to it
   std::string status;                               ///< tracking status ("features", ...)
   bool skipped = false;                             ///< no usable scan
