@@ -6,9 +6,12 @@
 ///
 /// Writes DIR/poses_kitti.txt (one line per selected input frame, LiDAR frame, first
 /// pose the identity), DIR/poses_tum.txt (times.txt timestamps when present, else the
-/// file index) and DIR/timing.csv (one row per frame), each atomically. Unreadable
-/// frames get the constant-velocity pose and are reported on stderr.
-/// Exit codes: 0 ok, 1 bad arguments, 2 I/O error, 3 no frame could be tracked.
+/// file index), DIR/timing.csv (one row per frame) and DIR/summary.json (counts,
+/// median time, `error`), each atomically. Unreadable frames get the constant-velocity
+/// pose and are reported on stderr. An error after frames were processed ends the run
+/// but not its results: the frames before it are written, summary.json names the error.
+/// Exit codes: 0 ok, 1 bad arguments, 2 I/O error, 3 no frame could be tracked or the
+/// run ended by an error.
 
 #include <pcl/slam/odometry.h>
 #include <pcl/slam/pose_io.h>
@@ -16,7 +19,8 @@
 
 #include "cli.h"
 #include "sensor_choice.h"
-#include "sensor_choice.h"
+
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <cstdio>
@@ -147,6 +151,7 @@ run(int argc, char** argv)
   rast::applySensorPreset(preset, params);
   applyFlags(params);
 
+  const InjectedFault fault = injectedFault({"tracking"});
   rast::Odometry odometry(params);
   rast::PoseVector poses;
   std::vector<double> times;
@@ -157,14 +162,19 @@ run(int argc, char** argv)
   std::vector<double> totals;
   std::size_t num_tracked = 0;
   ProgressBar bar("Odometry", reader.size());
-  for (std::size_t i = 0; i < reader.size(); ++i) {
+  std::exception_ptr run_error; // ends the run; the frames before it are written
+  for (std::size_t i = 0; i < reader.size() && !run_error; ++i) {
     rast::OdometryFrameResult r;
     try {
+      fault.check("tracking", i);
       const rast::ScanFrame frame = reader.read(i);
       r = odometry.processFrame(frame.cloud, frame.timestamp_s, i);
     } catch (const rast::ScanReadError& e) {
       std::fprintf(stderr, "\nframe %zu: skipped: %s\n", i, e.what());
       r = odometry.skipFrame(reader.timestamp(i), i, e.what());
+    } catch (...) {
+      run_error = std::current_exception();
+      continue;
     }
     if (r.status != rast::TrackingStatus::kSkipped)
       ++num_tracked;
@@ -184,6 +194,13 @@ run(int argc, char** argv)
     bar.update(i + 1);
   }
   bar.finish();
+  const std::string error_message = run_error ? exceptionMessage(run_error) : "";
+  if (run_error) {
+    if (poses.empty())
+      std::rethrow_exception(run_error); // nothing was processed: nothing to save
+    std::fprintf(stderr, "\npcl_rast_odometry: error at frame %zu: %s\n", poses.size(),
+                 error_message.c_str());
+  }
 
   rast::writeKittiPoses(output + "/poses_kitti.txt", poses);
   rast::writeTumPoses(output + "/poses_tum.txt", poses, times);
@@ -191,11 +208,28 @@ run(int argc, char** argv)
 
   std::sort(totals.begin(), totals.end());
   const double median = totals.empty() ? 0.0 : totals[totals.size() / 2];
+  nlohmann::json summary;
+  summary["input"] = reader.scanFolder();
+  summary["frames_selected"] = reader.size();
+  summary["frames"] = poses.size();
+  summary["frames_tracked"] = num_tracked;
+  summary["keyframes"] = odometry.numKeyFrames();
+  summary["tracking_status"] = status_counts;
+  summary["median_frame_ms"] = median;
+  summary["sensor"] = rast::toString(preset);
+  summary["max_rotation_error"] = rast::maxRotationError(poses);
+  summary["error"] = run_error ? nlohmann::json(error_message) : nlohmann::json(nullptr);
+  rast::writeFileAtomically(output + "/summary.json", summary.dump(2) + "\n");
   std::string counts;
   for (const auto& [name, count] : status_counts)
     counts += " " + name + "=" + std::to_string(count);
   std::fprintf(stderr, "Wrote %s [done : %zu frames, %zu key-frames, median %.1f ms/frame,%s]\n",
                output.c_str(), poses.size(), odometry.numKeyFrames(), median, counts.c_str());
+  if (run_error) {
+    std::fprintf(stderr, "pcl_rast_odometry: error: %s (the frames before it were written)\n",
+                 error_message.c_str());
+    return kExitAlgorithmFailure;
+  }
   if (num_tracked == 0) {
     std::fprintf(stderr, "pcl_rast_odometry: error: no frame could be tracked\n");
     return kExitAlgorithmFailure;

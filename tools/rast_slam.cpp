@@ -451,13 +451,23 @@ run(int argc, char** argv)
       T = T_first_inv * T;
   }
 
+  const pcl_rast_tools::InjectedFault fault =
+      pcl_rast_tools::injectedFault({"tracking", "local_mapping", "loop_closing"});
+
   // ---- run ----
   std::signal(SIGINT, onSigint);
   const auto wall_start = std::chrono::steady_clock::now();
   rast::RastSlam slam(params);
+  if (fault.active)
+    slam.setKeyFrameObserver([fault](rast::SlamStage stage, const rast::KeyFrame& kf) {
+      fault.check(rast::toString(stage), kf.id);
+    });
   json skipped = json::array();
   std::size_t processed = 0;
-  {
+  // An error after frames were processed ends the run, not its results: what was
+  // processed is written below, summary.json names the error, and the exit code is 3.
+  std::exception_ptr run_error;
+  try {
     Prefetcher prefetcher(reader, 4);
     std::optional<pcl_rast_tools::ProgressBar> bar;
     if (!quiet)
@@ -485,12 +495,26 @@ run(int argc, char** argv)
     }
     if (bar)
       bar->finish();
+  } catch (...) {
+    run_error = std::current_exception();
   }
   const bool interrupted = g_interrupted.load();
   if (interrupted)
     std::cerr << "pcl_rast_slam: interrupted after " << processed
               << " frames; finishing and writing the results so far\n";
-  slam.finish();
+  try {
+    slam.finish(); // joins the stages; rethrows a stage's error once
+  } catch (...) {
+    if (!run_error)
+      run_error = std::current_exception();
+  }
+  const std::string error_message = run_error ? pcl_rast_tools::exceptionMessage(run_error) : "";
+  if (run_error) {
+    if (slam.frames().empty())
+      std::rethrow_exception(run_error); // nothing was processed: nothing to save
+    std::cerr << "\npcl_rast_slam: error: " << error_message << "\npcl_rast_slam: writing the "
+              << slam.frames().size() << " frames processed before it\n";
+  }
   const double processing_peak_rss_mb = peakRssMb();
   const double wall_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
@@ -572,6 +596,16 @@ run(int argc, char** argv)
   summary["frames"] = stats.frames;
   summary["frames_selected"] = reader.size();
   summary["interrupted"] = interrupted;
+  summary["error"] = run_error ? json(error_message) : json(nullptr);
+  {
+    // How far the stored poses are from SO(3) (max of |R^T R - I| and |det R - 1|).
+    rast::PoseVector stored = kf_poses;
+    const rast::PoseVector frame_poses = slam.framePoses();
+    stored.insert(stored.end(), frame_poses.begin(), frame_poses.end());
+    for (const auto& e : slam.loops())
+      stored.push_back(e.T_candidate_query);
+    summary["max_rotation_error"] = rast::maxRotationError(stored);
+  }
   summary["skipped_frames"] = skipped;
   summary["keyframes"] = stats.keyframes;
   summary["map_points"] = stats.map_points;
@@ -647,6 +681,11 @@ run(int argc, char** argv)
   if (summary.contains("ate_rmse_m") && !summary["ate_rmse_m"].is_null())
     std::cerr << ", ATE RMSE " << summary["ate_rmse_m"].get<double>() << " m";
   std::cerr << "\n";
+  if (run_error) {
+    std::cerr << "pcl_rast_slam: error: " << error_message
+              << " (the results up to it were written)\n";
+    return pcl_rast_tools::kExitAlgorithmFailure;
+  }
   return pcl_rast_tools::kExitOk;
 }
 

@@ -272,6 +272,7 @@ struct RastSlam::Impl
   std::map<std::string, std::size_t> status_counts;
   std::size_t skipped = 0, accepted = 0, rejected = 0, inconsistent = 0, candidates = 0;
   std::vector<LoopRecord> loop_records;
+  RastSlam::KeyFrameObserver observer; ///< set before the first scan, then read only
 
   Impl(const SlamParams& p, SlamMap::Ptr m, BlobStore::Ptr store)
     : params(p)
@@ -345,9 +346,18 @@ struct RastSlam::Impl
   {
     const double cpu0 = threadCpuMs();
     const LocalMappingResult r = local_mapping.processKeyFrame(kf);
-    std::lock_guard<std::mutex> lock(stats_mutex);
-    mapping_ms.push_back(r.total_ms);
-    cpu_ms["local_mapping"] += threadCpuMs() - cpu0;
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex);
+      mapping_ms.push_back(r.total_ms);
+      cpu_ms["local_mapping"] += threadCpuMs() - cpu0;
+    }
+    notify(SlamStage::kLocalMapping, *kf);
+  }
+
+  void notify(SlamStage stage, const KeyFrame& kf) const
+  {
+    if (observer)
+      observer(stage, kf);
   }
 
   /// The loop-closing stage for one key-frame (after local mapping): search, verify,
@@ -362,6 +372,7 @@ struct RastSlam::Impl
     if (!in_database && !params.loop_closing.global_bundle_adjustment)
       features_to_release.push_back(kf->id);
     releaseFinishedFeatures(kf->id);
+    notify(SlamStage::kLoopClosing, *kf);
   }
 
   /// Key-frames outside the loop database hold their features only for tracking and
@@ -547,9 +558,10 @@ struct RastSlam::Impl
     rec.skipped_reason = reason;
     rec.path = path;
     if (map->numKeyFrames() == 0) {
-      // No key-frame yet (leading skipped frames): keep tracking's own pose.
+      // No key-frame yet (leading empty or unusable scans): tracking's own pose, for
+      // good. The first usable scan starts the map, whatever came before it.
       rec.T_keyframe_lidar = r.T_world_lidar;
-      rec.reference_keyframe = 0;
+      rec.reference_keyframe = kNoKeyFrame;
     }
     map->addFrame(rec);
     {
@@ -560,6 +572,7 @@ struct RastSlam::Impl
     }
     if (!r.keyframe)
       return;
+    notify(SlamStage::kTracking, *r.keyframe);
     if (params.deterministic) {
       mapKeyFrame(r.keyframe);
       closeLoops(r.keyframe);
@@ -644,6 +657,29 @@ void
 RastSlam::finish()
 {
   impl_->finish();
+}
+
+void
+RastSlam::setKeyFrameObserver(KeyFrameObserver observer)
+{
+  // The worker threads read it unguarded: set only before they can see a key-frame.
+  if (map_->numFrames() > 0 || impl_->finished)
+    throw std::logic_error("RastSlam::setKeyFrameObserver: set it before the first addScan");
+  impl_->observer = std::move(observer);
+}
+
+const char*
+toString(SlamStage stage)
+{
+  switch (stage) {
+  case SlamStage::kTracking:
+    return "tracking";
+  case SlamStage::kLocalMapping:
+    return "local_mapping";
+  case SlamStage::kLoopClosing:
+    return "loop_closing";
+  }
+  return "unknown";
 }
 
 PoseVector

@@ -10,6 +10,7 @@
 #include "test_data.h"
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <cstdlib>
@@ -114,10 +115,43 @@ TEST_F(OdometryTool, WritesPosesAndTimingForEveryFrame)
   EXPECT_EQ(timing[7].rfind("6,features,", 0), 0u) << timing[7];
   for (const auto& row : timing)
     EXPECT_EQ(std::count(row.begin(), row.end(), ','), std::count(timing[0].begin(), timing[0].end(), ','));
+  const auto summary = nlohmann::json::parse(readAll(out / "summary.json"));
+  EXPECT_EQ(summary["frames"].get<int>(), 12);
+  EXPECT_EQ(summary["frames_tracked"].get<int>(), 11);
+  EXPECT_TRUE(summary["error"].is_null());
+  EXPECT_LE(summary["max_rotation_error"].get<double>(), 1e-9);
   // Atomic writes leave no temporaries behind.
-  for (const auto& entry : fs::directory_iterator(out))
-    EXPECT_EQ(entry.path().extension(), entry.path().extension() == ".csv" ? ".csv" : ".txt")
-        << entry.path();
+  for (const auto& entry : fs::directory_iterator(out)) {
+    const std::string ext = entry.path().extension().string();
+    EXPECT_TRUE(ext == ".csv" || ext == ".txt" || ext == ".json") << entry.path();
+  }
+}
+
+TEST_F(OdometryTool, AnErrorMidRunStillWritesTheFramesBeforeItAndExitsThree)
+{
+  const fs::path seq = sequence();
+  const fs::path out = dir_ / "out";
+  ::setenv("PCL_RAST_INJECT_FAULT", "tracking:7", 1);
+  const int rc = runOdometry("-input '" + seq.string() + "' -output '" + out.string() + "'", log_);
+  ::unsetenv("PCL_RAST_INJECT_FAULT");
+  ASSERT_EQ(rc, 3) << readAll(log_);
+  EXPECT_NE(readAll(log_).find("injected fault"), std::string::npos) << readAll(log_);
+  EXPECT_EQ(pcl::rast::readTrajectory((out / "poses_kitti.txt").string()).poses.size(), 7u);
+  EXPECT_EQ(pcl::rast::readTrajectory((out / "poses_tum.txt").string()).poses.size(), 7u);
+  EXPECT_EQ(readLines(out / "timing.csv").size(), 8u);
+  const auto summary = nlohmann::json::parse(readAll(out / "summary.json"));
+  EXPECT_EQ(summary["frames"].get<int>(), 7);
+  EXPECT_NE(summary["error"].get<std::string>().find("injected fault (PCL_RAST_INJECT_FAULT="
+                                                     "tracking:7)"),
+            std::string::npos)
+      << summary.dump();
+
+  // A malformed fault is refused before any work.
+  const fs::path out2 = dir_ / "out2";
+  ::setenv("PCL_RAST_INJECT_FAULT", "loop_closing:x", 1);
+  EXPECT_EQ(runOdometry("-input '" + seq.string() + "' -output '" + out2.string() + "'", log_), 1);
+  ::unsetenv("PCL_RAST_INJECT_FAULT");
+  EXPECT_NE(readAll(log_).find("PCL_RAST_INJECT_FAULT"), std::string::npos) << readAll(log_);
 }
 
 TEST_F(OdometryTool, FrameSelection)

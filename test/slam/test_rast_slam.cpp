@@ -280,6 +280,48 @@ TEST(RastSlam, LoopCorrectionGoesToTheYoungMapsEdges)
   EXPECT_LT(young, 0.7 * equal);
 }
 
+/// Leading scans of a few points make no key-frame; the first usable scan starts the
+/// map, in both thread modes (it used to abort: "frame 0 references unknown key-frame 0").
+TEST(RastSlam, TinyLeadingScansDoNotStopTheFirstUsableScanFromStartingTheMap)
+{
+  const LoopSequence& s = loopSequence();
+  for (const bool deterministic : {true, false}) {
+    SlamParams params;
+    params.deterministic = deterministic;
+    RastSlam slam(params);
+    const std::size_t leading = 3, frames = 30;
+    for (std::size_t i = 0; i < leading; ++i) {
+      auto tiny = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+      for (std::size_t k = 0; k <= i; ++k) { // 1, 2, 3 points
+        pcl::PointXYZI p;
+        p.x = 5.0f + k;
+        p.y = 1.0f;
+        p.z = 0.5f;
+        p.intensity = 0.1f;
+        tiny->push_back(p);
+      }
+      ASSERT_NO_THROW(slam.addScan(tiny, 0.1 * i, i)) << "leading scan " << i;
+    }
+    for (std::size_t i = leading; i < frames; ++i)
+      ASSERT_NO_THROW(slam.addScan(s.clouds[i], s.times[i] + 0.1 * leading, i)) << i;
+    ASSERT_NO_THROW(slam.finish());
+    const PoseVector poses = slam.framePoses();
+    ASSERT_EQ(poses.size(), frames);
+    const std::vector<FrameRecord> records = slam.frames();
+    for (std::size_t i = 0; i < leading; ++i)
+      EXPECT_EQ(records[i].reference_keyframe, kNoKeyFrame) << i;
+    ASSERT_FALSE(slam.keyFrames().empty());
+    EXPECT_EQ(slam.keyFrames().front()->frame_index, leading);
+    // From the first usable scan on, the motion is the ground truth's.
+    for (std::size_t i = leading + 1; i < frames; ++i) {
+      const Pose3d T_est = poses[leading].inverse() * poses[i];
+      const Pose3d T_gt = s.gt[leading].inverse() * s.gt[i];
+      EXPECT_LT((T_est.translation() - T_gt.translation()).norm(), 0.1)
+          << (deterministic ? "deterministic" : "threaded") << " frame " << i;
+    }
+  }
+}
+
 TEST(RastSlam, ReportsBadUse)
 {
   SlamParams bad;

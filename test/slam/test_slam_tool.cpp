@@ -170,4 +170,45 @@ TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
   EXPECT_NE(readText(log_).find("-no-revisit-culling"), std::string::npos);
 }
 
+/// An exception in the loop-closing thread mid-run (injected at its second key-frame)
+/// ends the run but does not lose it: every output is written for the frames processed,
+/// summary.json names the error, and the exit code is 3.
+TEST_F(SlamTool, AnErrorInTheLoopClosingThreadStillWritesEveryOutputAndExitsThree)
+{
+  const fs::path out = dir_ / "out";
+  const fs::path seq = sequenceDir();
+  ::setenv("PCL_RAST_INJECT_FAULT", "loop_closing:1", 1);
+  const int rc = runTool("-input '" + seq.string() + "' -output '" + out.string() + "' -gt '" +
+                             (seq / "poses.txt").string() + "' -software-render -quiet",
+                         log_);
+  ::unsetenv("PCL_RAST_INJECT_FAULT");
+  ASSERT_EQ(rc, 3) << readText(log_);
+  for (const char* f : {"poses_kitti.txt", "poses_tum.txt", "map.pcd", "render.png", "summary.json"})
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  const auto summary = nlohmann::json::parse(readText(out / "summary.json"));
+  ASSERT_TRUE(summary["error"].is_string()) << summary.dump();
+  EXPECT_NE(summary["error"].get<std::string>().find("injected fault (PCL_RAST_INJECT_FAULT="
+                                                     "loop_closing:1)"),
+            std::string::npos);
+  const auto frames = summary["frames"].get<std::size_t>();
+  EXPECT_GE(frames, 2u);
+  EXPECT_LE(frames, 40u);
+  EXPECT_GE(summary["keyframes"].get<int>(), 2);
+  EXPECT_EQ(countLines(out / "poses_kitti.txt"), frames);
+  EXPECT_EQ(countLines(out / "poses_tum.txt"), frames);
+  EXPECT_LE(summary["max_rotation_error"].get<double>(), 1e-9);
+  pcl::PointCloud<pcl::PointXYZI> map;
+  ASSERT_EQ(pcl::io::loadPCDFile((out / "map.pcd").string(), map), 0);
+  EXPECT_GT(map.size(), 1000u);
+  EXPECT_NE(readText(log_).find("injected fault"), std::string::npos);
+
+  // The same run without the fault: exit 0 and a null error.
+  ASSERT_EQ(runTool("-input '" + seq.string() + "' -output '" + out.string() +
+                        "' -software-render -quiet",
+                    log_),
+            0)
+      << readText(log_);
+  EXPECT_TRUE(nlohmann::json::parse(readText(out / "summary.json"))["error"].is_null());
+}
+
 } // namespace

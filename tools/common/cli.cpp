@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <iomanip>
 #include <iostream>
 #include <limits>
@@ -287,6 +288,58 @@ runTool(const std::string& program, const std::function<int()>& body)
     std::cerr << program << ": error: " << e.what() << "\n";
     return kExitIoError;
   }
+}
+
+std::string
+exceptionMessage(const std::exception_ptr& error)
+{
+  try {
+    std::rethrow_exception(error);
+  } catch (const std::exception& e) {
+    return e.what();
+  } catch (...) {
+    return "unknown error";
+  }
+}
+
+InjectedFault
+injectedFault(const std::vector<std::string>& stages)
+{
+  InjectedFault fault;
+  const char* value = std::getenv("PCL_RAST_INJECT_FAULT");
+  if (!value || !*value)
+    return fault;
+  const std::string text(value);
+  const auto colon = text.find(':');
+  const std::string stage = text.substr(0, colon);
+  bool known = false;
+  for (const auto& s : stages)
+    known = known || s == stage;
+  std::size_t used = 0;
+  long long index = -1;
+  if (colon != std::string::npos) {
+    try {
+      index = std::stoll(text.substr(colon + 1), &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+  }
+  if (!known || colon == std::string::npos || used == 0 ||
+      used != text.size() - colon - 1 || index < 0)
+    throw ArgumentError("PCL_RAST_INJECT_FAULT='" + text +
+                        "' is not <stage>:<n> with a stage of this tool and n >= 0");
+  fault.stage = stage;
+  fault.index = static_cast<std::size_t>(index);
+  fault.active = true;
+  return fault;
+}
+
+void
+InjectedFault::check(const std::string& stage_name, std::size_t index_now) const
+{
+  if (active && stage_name == stage && index_now == index)
+    throw std::runtime_error("injected fault (PCL_RAST_INJECT_FAULT=" + stage + ":" +
+                             std::to_string(index) + ")");
 }
 
 ProgressBar::ProgressBar(std::string label, std::size_t total)

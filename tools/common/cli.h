@@ -6,6 +6,7 @@
 
 #include <chrono>
 #include <cstddef>
+#include <exception>
 #include <functional>
 #include <stdexcept>
 #include <string>
@@ -80,6 +81,27 @@ private:
 /// std::invalid_argument -> exit 1, other std::exception -> exit 2 (I/O),
 /// each printed as "program: error: ..." on stderr.
 int runTool(const std::string& program, const std::function<int()>& body);
+
+/// \brief The what() of a stored exception ("unknown error" for a non-std one).
+std::string exceptionMessage(const std::exception_ptr& error);
+
+/// \brief A fault to inject, for the tests of the error paths (doc/slam.md, Errors): the
+/// environment variable PCL_RAST_INJECT_FAULT="<stage>:<n>" makes a tool throw a
+/// std::runtime_error when <stage> (tracking: frame n; local_mapping, loop_closing:
+/// key-frame n) reaches n. Unset: no fault.
+struct InjectedFault
+{
+  std::string stage;
+  std::size_t index = 0;
+  bool active = false;
+  /// \brief Throws "injected fault (PCL_RAST_INJECT_FAULT=...)" when \a stage reaches
+  /// the fault's index.
+  void check(const std::string& stage_name, std::size_t index_now) const;
+};
+
+/// \brief The fault PCL_RAST_INJECT_FAULT asks for, checked against \a stages.
+/// \throws ArgumentError on a malformed value or an unknown stage.
+InjectedFault injectedFault(const std::vector<std::string>& stages);
 
 /// \brief A progress bar on stderr: `label [=====>    ] 120/4541  35.2 fps  ETA 2:05`.
 /// On a terminal it redraws in place; otherwise it prints a line every 10 %.

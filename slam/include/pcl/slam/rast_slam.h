@@ -24,6 +24,7 @@
 #include <pcl/point_types.h>
 
 #include <cstddef>
+#include <functional>
 #include <map>
 #include <memory>
 #include <string>
@@ -167,11 +168,26 @@ struct LoopRecord
   bool dropped_inconsistent = false;
 };
 
+/// \brief The three stages a key-frame passes through.
+enum class SlamStage
+{
+  kTracking,     ///< made by tracking (caller's thread)
+  kLocalMapping, ///< local mapping is done with it
+  kLoopClosing   ///< loop closing is done with it (searched, maybe closed a loop)
+};
+
+/// \brief "tracking", "local_mapping" or "loop_closing".
+const char*
+toString(SlamStage stage);
+
 /// \brief The SLAM system (see the file comment).
 class RastSlam
 {
 public:
   using Ptr = std::shared_ptr<RastSlam>;
+  /// \brief Called with each key-frame once a stage is done with it, on that stage's
+  /// thread (see setKeyFrameObserver).
+  using KeyFrameObserver = std::function<void(SlamStage, const KeyFrame&)>;
 
   /// \throws std::invalid_argument when \a params are invalid (the message says why).
   explicit RastSlam(const SlamParams& params = SlamParams());
@@ -196,8 +212,16 @@ public:
                                      const std::string& path = "");
 
   /// \brief Process everything queued, stop the worker threads. Idempotent.
-  /// \throws the first exception a worker thread raised (once).
+  /// \throws the first exception a worker thread raised (once). The results so far
+  /// (framePoses, keyFramePoses, map, statistics) stay readable after it: an error
+  /// ends the run, it does not discard it.
   void finish();
+
+  /// \brief Watch key-frames pass the stages (progress, viewers, fault injection in
+  /// tests). Set it before the first addScan. The observer runs on the stage's
+  /// thread: it must be thread-safe and quick. An exception it throws ends the run as
+  /// an error of that stage would (addScan or finish rethrows it).
+  void setKeyFrameObserver(KeyFrameObserver observer);
 
   /// \brief Corrected pose of every input frame so far (LiDAR frame in the world frame
   /// of the first scan), in input order.
