@@ -14,10 +14,11 @@
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
-#include <pcl/slam/sequence_reader.h>
 #include <pcl/slam/pose_io.h>
+#include <pcl/slam/sequence_reader.h>
 #include <sstream>
 #include <system_error>
+#include <utility>
 
 namespace fs = std::filesystem;
 
@@ -43,7 +44,8 @@ isScanExtension(const std::string& ext)
 }
 
 /// Append a point when all four values are finite; otherwise count it as dropped.
-inline void
+/// \return true when the point was appended
+inline bool
 pushIfFinite(pcl::PointCloud<pcl::PointXYZI>& cloud,
              float x,
              float y,
@@ -59,9 +61,10 @@ pushIfFinite(pcl::PointCloud<pcl::PointXYZI>& cloud,
     p.z = z;
     p.intensity = intensity;
     cloud.push_back(p);
-  } else {
-    ++num_dropped;
+    return true;
   }
+  ++num_dropped;
+  return false;
 }
 
 /// Fail early with a clear reason when the path is not a readable, non-empty file.
@@ -114,61 +117,55 @@ readKittiBin(const std::string& path,
   }
 }
 
-/// Read one value of any PCLPointField numeric type as float.
-inline float
-fieldAsFloat(const std::uint8_t* p, std::uint8_t datatype)
+/// The value of type V stored (possibly unaligned) at \a p.
+template <typename V>
+inline V
+load(const std::uint8_t* p)
+{
+  V v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+
+/// Read one value of any PCLPointField numeric type as T (float for coordinates,
+/// double for times: an absolute time like 1.7e9 s keeps its microseconds only in
+/// double). NaN for an unknown type.
+template <typename T>
+inline T
+fieldAs(const std::uint8_t* p, std::uint8_t datatype)
 {
   switch (datatype) {
-  case pcl::PCLPointField::INT8: {
-    std::int8_t v;
-    std::memcpy(&v, p, sizeof v);
-    return v;
-  }
+  case pcl::PCLPointField::INT8:
+    return static_cast<T>(load<std::int8_t>(p));
   case pcl::PCLPointField::UINT8:
-    return *p;
-  case pcl::PCLPointField::INT16: {
-    std::int16_t v;
-    std::memcpy(&v, p, sizeof v);
-    return v;
-  }
-  case pcl::PCLPointField::UINT16: {
-    std::uint16_t v;
-    std::memcpy(&v, p, sizeof v);
-    return v;
-  }
-  case pcl::PCLPointField::INT32: {
-    std::int32_t v;
-    std::memcpy(&v, p, sizeof v);
-    return static_cast<float>(v);
-  }
-  case pcl::PCLPointField::UINT32: {
-    std::uint32_t v;
-    std::memcpy(&v, p, sizeof v);
-    return static_cast<float>(v);
-  }
-  case pcl::PCLPointField::INT64: {
-    std::int64_t v;
-    std::memcpy(&v, p, sizeof v);
-    return static_cast<float>(v);
-  }
-  case pcl::PCLPointField::UINT64: {
-    std::uint64_t v;
-    std::memcpy(&v, p, sizeof v);
-    return static_cast<float>(v);
-  }
-  case pcl::PCLPointField::FLOAT32: {
-    float v;
-    std::memcpy(&v, p, sizeof v);
-    return v;
-  }
-  case pcl::PCLPointField::FLOAT64: {
-    double v;
-    std::memcpy(&v, p, sizeof v);
-    return static_cast<float>(v);
-  }
+    return static_cast<T>(load<std::uint8_t>(p));
+  case pcl::PCLPointField::INT16:
+    return static_cast<T>(load<std::int16_t>(p));
+  case pcl::PCLPointField::UINT16:
+    return static_cast<T>(load<std::uint16_t>(p));
+  case pcl::PCLPointField::INT32:
+    return static_cast<T>(load<std::int32_t>(p));
+  case pcl::PCLPointField::UINT32:
+    return static_cast<T>(load<std::uint32_t>(p));
+  case pcl::PCLPointField::INT64:
+    return static_cast<T>(load<std::int64_t>(p));
+  case pcl::PCLPointField::UINT64:
+    return static_cast<T>(load<std::uint64_t>(p));
+  case pcl::PCLPointField::FLOAT32:
+    return static_cast<T>(load<float>(p));
+  case pcl::PCLPointField::FLOAT64:
+    return static_cast<T>(load<double>(p));
   default:
-    return std::numeric_limits<float>::quiet_NaN();
+    return std::numeric_limits<T>::quiet_NaN();
   }
+}
+
+/// Whether a value of \a f lies inside a point of \a blob and has a numeric type.
+bool
+fieldFits(const pcl::PCLPointCloud2& blob, const pcl::PCLPointField& f)
+{
+  const std::size_t size = pcl::getFieldSize(f.datatype);
+  return size != 0 && f.offset + size <= blob.point_step;
 }
 
 const pcl::PCLPointField*
@@ -181,12 +178,131 @@ findField(const pcl::PCLPointCloud2& blob, const std::vector<std::string>& names
   return nullptr;
 }
 
-/// Convert a PCD/PLY blob to x y z intensity, whatever the field types are.
+/// Fields that may hold the time of each point, in the order they are looked for:
+/// Velodyne / rslidar (s), Ouster (ns), Hesai and others (often absolute s), Livox (ns).
+const std::vector<std::string> kTimeFieldNames = {
+    "time", "t", "timestamp", "time_stamp", "offset_time", "ts"};
+
+/// The raw times of the kept points, gathered while the blob is converted, with the
+/// counts that checkAndCentreTimes() needs, so that the blob is read only once.
+struct RawTimes
+{
+  /// The time field of the blob, or null when it has none or cannot read it.
+  const pcl::PCLPointField* field = nullptr;
+  /// Why a time field that is present cannot be read (empty otherwise).
+  std::string warning;
+  /// One raw value per kept point, in the cloud's order.
+  std::vector<double> values;
+  double min = std::numeric_limits<double>::infinity();
+  double max = -std::numeric_limits<double>::infinity();
+  std::size_t num_non_finite = 0;
+  /// Pairs of consecutive kept points in the same row, and how many of them go back.
+  std::size_t num_steps = 0;
+  std::size_t num_backward = 0;
+
+  /// A new row of an organized cloud: its first point is not compared to the last
+  /// point of the previous row.
+  void startRow() { row_started_ = false; }
+
+  void add(double t)
+  {
+    if (std::isfinite(t)) {
+      min = std::min(min, t);
+      max = std::max(max, t);
+    } else {
+      ++num_non_finite;
+    }
+    if (row_started_) {
+      ++num_steps;
+      if (t < values.back())
+        ++num_backward;
+    }
+    values.push_back(t);
+    row_started_ = true;
+  }
+
+private:
+  bool row_started_ = false;
+};
+
+/// The validated times of one scan, as ScanFrame carries them.
+struct PointTimes
+{
+  std::vector<float> times_s;
+  std::string field;
+  std::string warning;
+};
+
+/// Check the raw times, choose their unit and centre them on the middle of the sweep
+/// (relative in double, then float). Leaves \a out.times_s empty and says why in
+/// out.warning when they cannot be used.
+void
+checkAndCentreTimes(const RawTimes& raw, PointTimes& out)
+{
+  const std::string name = "field '" + raw.field->name + "'";
+  auto reject = [&out](const std::string& why) {
+    out.warning = "per-point times not used: " + why;
+  };
+  // Each check below ends with `return reject(...)`.
+  if (raw.values.empty()) { // no kept points: nothing to time
+    out.field = raw.field->name;
+    return;
+  }
+  if (raw.num_non_finite > 0)
+    return reject(name + " has " + std::to_string(raw.num_non_finite) + " of " +
+                  std::to_string(raw.values.size()) + " values NaN or infinite");
+  const double span = raw.max - raw.min;
+  if (!(span > 0.0))
+    return reject("all " + std::to_string(raw.values.size()) + " values of " + name +
+                  " are equal (" + std::to_string(raw.min) + "): no sweep to time");
+
+  // The unit: the first scale that makes the span a sweep of a 2-100 Hz LiDAR.
+  constexpr double kMinSweepS = 0.005;
+  constexpr double kMaxSweepS = 0.5;
+  double scale = 0.0;
+  for (double candidate : {1.0, 1e-3, 1e-6, 1e-9}) {
+    if (span * candidate >= kMinSweepS && span * candidate <= kMaxSweepS) {
+      scale = candidate;
+      break;
+    }
+  }
+  if (scale == 0.0) {
+    std::ostringstream why;
+    why << name << " spans " << span << " (from " << raw.min << " to " << raw.max
+        << "), which fits no unit: as s, ms, us or ns it is no sweep of " << kMinSweepS
+        << " to " << kMaxSweepS << " s";
+    return reject(why.str());
+  }
+
+  // Firing order: a driver writes points as they are measured.
+  constexpr double kMaxBackwardFraction = 0.01;
+  if (raw.num_steps > 0 &&
+      static_cast<double>(raw.num_backward) >
+          kMaxBackwardFraction * static_cast<double>(raw.num_steps)) {
+    std::ostringstream why;
+    why << name << " is not monotonic in storage order: " << raw.num_backward << " of "
+        << raw.num_steps << " steps between consecutive points go backwards (at most "
+        << kMaxBackwardFraction * 100.0
+        << " % allowed); the cloud was shuffled or filtered";
+    return reject(why.str());
+  }
+
+  const double mid = 0.5 * (raw.min + raw.max);
+  out.times_s.resize(raw.values.size());
+  for (std::size_t k = 0; k < raw.values.size(); ++k)
+    out.times_s[k] = static_cast<float>((raw.values[k] - mid) * scale);
+  out.field = raw.field->name;
+}
+
+/// Convert a PCD/PLY blob to x y z intensity, whatever the field types are; when
+/// \a times is not null and the blob has a time field, also gather the raw times of
+/// the kept points in the same pass.
 void
 blobToCloud(const std::string& path,
             const pcl::PCLPointCloud2& blob,
             pcl::PointCloud<pcl::PointXYZI>& cloud,
-            std::size_t& num_dropped)
+            std::size_t& num_dropped,
+            RawTimes* times)
 {
   const pcl::PCLPointField* fx = findField(blob, {"x"});
   const pcl::PCLPointField* fy = findField(blob, {"y"});
@@ -199,10 +315,7 @@ blobToCloud(const std::string& path,
 
   const std::size_t num_points = static_cast<std::size_t>(blob.width) * blob.height;
   for (const pcl::PCLPointField* f : {fx, fy, fz, fi}) {
-    if (!f)
-      continue;
-    const std::size_t size = pcl::getFieldSize(f->datatype);
-    if (size == 0 || f->offset + size > blob.point_step)
+    if (f && !fieldFits(blob, *f))
       throw ScanReadError(path,
                           "field '" + f->name + "' has an unsupported type or layout");
   }
@@ -211,18 +324,34 @@ blobToCloud(const std::string& path,
        blob.data.size() < static_cast<std::size_t>(blob.row_step) * blob.height))
     throw ScanReadError(path, "point data is shorter than the header says");
 
+  // A bad time field costs the times, not the scan.
+  const pcl::PCLPointField* ft = times ? findField(blob, kTimeFieldNames) : nullptr;
+  if (ft && !fieldFits(blob, *ft)) {
+    times->warning = "per-point times not used: field '" + ft->name +
+                     "' has an unsupported type or layout";
+    ft = nullptr;
+  }
+  if (ft) {
+    times->field = ft;
+    times->values.reserve(num_points);
+  }
+
   cloud.reserve(num_points);
   for (std::size_t r = 0; r < blob.height; ++r) {
     const std::uint8_t* row = blob.data.data() + r * blob.row_step;
+    if (ft)
+      times->startRow();
     for (std::size_t c = 0; c < blob.width; ++c) {
       const std::uint8_t* pt = row + c * blob.point_step;
-      const float intensity = fi ? fieldAsFloat(pt + fi->offset, fi->datatype) : 0.0f;
-      pushIfFinite(cloud,
-                   fieldAsFloat(pt + fx->offset, fx->datatype),
-                   fieldAsFloat(pt + fy->offset, fy->datatype),
-                   fieldAsFloat(pt + fz->offset, fz->datatype),
-                   intensity,
-                   num_dropped);
+      const float intensity = fi ? fieldAs<float>(pt + fi->offset, fi->datatype) : 0.0f;
+      const bool kept = pushIfFinite(cloud,
+                                     fieldAs<float>(pt + fx->offset, fx->datatype),
+                                     fieldAs<float>(pt + fy->offset, fy->datatype),
+                                     fieldAs<float>(pt + fz->offset, fz->datatype),
+                                     intensity,
+                                     num_dropped);
+      if (ft && kept)
+        times->add(fieldAs<double>(pt + ft->offset, ft->datatype));
     }
   }
 }
@@ -302,13 +431,14 @@ readPcd(const std::string& path, std::uintmax_t size_bytes, pcl::PCLPointCloud2&
     throw ScanReadError(path, "cannot parse .pcd file: malformed point data");
 }
 
-/// Load a PCD or PLY file and convert it.
+/// Load a PCD or PLY file and convert it; \a times as in blobToCloud().
 void
 readPclFile(const std::string& path,
             const std::string& ext,
             std::uintmax_t size_bytes,
             pcl::PointCloud<pcl::PointXYZI>& cloud,
-            std::size_t& num_dropped)
+            std::size_t& num_dropped,
+            PointTimes* times)
 {
   pcl::PCLPointCloud2 blob;
   try {
@@ -322,7 +452,13 @@ readPclFile(const std::string& path,
   } catch (const std::exception& e) {
     throw ScanReadError(path, "cannot parse " + ext + " file: " + e.what());
   }
-  blobToCloud(path, blob, cloud, num_dropped);
+  RawTimes raw;
+  blobToCloud(path, blob, cloud, num_dropped, times ? &raw : nullptr);
+  if (!times)
+    return;
+  times->warning = raw.warning;
+  if (raw.field)
+    checkAndCentreTimes(raw, *times);
 }
 
 /// Parse the digits of the last run of digits in \a stem; empty when there is none.
@@ -419,10 +555,11 @@ readTimes(const std::string& path)
   return times;
 }
 
-} // namespace
-
+/// readScan(), and when \a times is not null the validated per-point times.
 pcl::PointCloud<pcl::PointXYZI>::Ptr
-readScan(const std::string& path, std::size_t* num_dropped_non_finite)
+readScanAndTimes(const std::string& path,
+                 std::size_t* num_dropped_non_finite,
+                 PointTimes* times)
 {
   const std::string ext = lowerExtension(path);
   if (!isScanExtension(ext))
@@ -435,13 +572,21 @@ readScan(const std::string& path, std::size_t* num_dropped_non_finite)
   if (ext == ".bin")
     readKittiBin(path, size_bytes, *cloud, num_dropped);
   else
-    readPclFile(path, ext, size_bytes, *cloud, num_dropped);
+    readPclFile(path, ext, size_bytes, *cloud, num_dropped, times);
   cloud->width = static_cast<std::uint32_t>(cloud->size());
   cloud->height = 1;
   cloud->is_dense = true;
   if (num_dropped_non_finite)
     *num_dropped_non_finite = num_dropped;
   return cloud;
+}
+
+} // namespace
+
+pcl::PointCloud<pcl::PointXYZI>::Ptr
+readScan(const std::string& path, std::size_t* num_dropped_non_finite)
+{
+  return readScanAndTimes(path, num_dropped_non_finite, nullptr);
 }
 
 void
@@ -600,7 +745,11 @@ SequenceReader::read(std::size_t i) const
   frame.file_index = selected_[i];
   frame.path = files_[frame.file_index];
   frame.timestamp_s = file_timestamps_s_[frame.file_index];
-  frame.cloud = readScan(frame.path, &frame.num_dropped_non_finite);
+  PointTimes times;
+  frame.cloud = readScanAndTimes(frame.path, &frame.num_dropped_non_finite, &times);
+  frame.point_times_s = std::move(times.times_s);
+  frame.time_field = std::move(times.field);
+  frame.time_warning = std::move(times.warning);
   return frame;
 }
 

@@ -1,14 +1,18 @@
 /// \file test_sequence_reader.cpp
 /// \brief Tests of the streaming scan-sequence reader: format round trips, ordering,
-/// selection, times.txt, bad input and real data.
+/// selection, times.txt, per-point times, bad input and real data.
 
 #include "test_data.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <gtest/gtest.h>
 #include <limits>
+#include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
 #include <pcl/slam/sequence_reader.h>
@@ -126,6 +130,115 @@ kittiName(int i)
   char name[32];
   std::snprintf(name, sizeof name, "%06d.bin", i);
   return name;
+}
+
+/// A per-point field of a hand-built scan: name, PCL type and one value per point.
+struct ExtraField
+{
+  std::string name;
+  std::uint8_t datatype;
+  std::vector<double> values;
+};
+
+/// Store \a v as the PCL type \a datatype (FLOAT32, FLOAT64 or UINT32) at \a p.
+void
+storeAs(std::uint8_t datatype, double v, std::uint8_t* p)
+{
+  if (datatype == pcl::PCLPointField::FLOAT32) {
+    const float f = static_cast<float>(v);
+    std::memcpy(p, &f, sizeof f);
+  } else if (datatype == pcl::PCLPointField::FLOAT64) {
+    std::memcpy(p, &v, sizeof v);
+  } else if (datatype == pcl::PCLPointField::UINT32) {
+    const std::uint32_t u = static_cast<std::uint32_t>(v);
+    std::memcpy(p, &u, sizeof u);
+  } else {
+    ADD_FAILURE() << "storeAs: unsupported datatype " << int(datatype);
+  }
+}
+
+/// Write \a points (float x y z intensity) with \a extra fields as a binary PCD of
+/// \a height rows (row-major; height 1 = unorganized), the way a driver would save a
+/// sweep with its per-point times.
+void
+writePcdWithFields(const fs::path& path,
+                   const Cloud& points,
+                   const std::vector<ExtraField>& extra,
+                   std::uint32_t height = 1)
+{
+  pcl::PCLPointCloud2 blob;
+  std::uint32_t offset = 0;
+  auto addField = [&](const std::string& name, std::uint8_t datatype) {
+    pcl::PCLPointField f;
+    f.name = name;
+    f.offset = offset;
+    f.datatype = datatype;
+    f.count = 1;
+    blob.fields.push_back(f);
+    offset += static_cast<std::uint32_t>(pcl::getFieldSize(datatype));
+  };
+  for (const char* name : {"x", "y", "z", "intensity"})
+    addField(name, pcl::PCLPointField::FLOAT32);
+  for (const ExtraField& e : extra) {
+    ASSERT_EQ(e.values.size(), points.size()) << e.name;
+    addField(e.name, e.datatype);
+  }
+  ASSERT_EQ(points.size() % height, 0u);
+  blob.height = height;
+  blob.width = static_cast<std::uint32_t>(points.size() / height);
+  blob.point_step = offset;
+  blob.row_step = blob.point_step * blob.width;
+  blob.is_dense = false;
+  blob.data.resize(static_cast<std::size_t>(blob.row_step) * height);
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    std::uint8_t* pt = blob.data.data() + i * blob.point_step;
+    const float xyzi[4] = {points[i].x, points[i].y, points[i].z, points[i].intensity};
+    std::memcpy(pt, xyzi, sizeof xyzi);
+    for (std::size_t e = 0; e < extra.size(); ++e)
+      storeAs(extra[e].datatype, extra[e].values[i], pt + blob.fields[4 + e].offset);
+  }
+  ASSERT_EQ(pcl::PCDWriter().writeBinary(path.string(), blob), 0) << path;
+}
+
+/// \a n times from \a start, \a step apart.
+std::vector<double>
+rampTimes(std::size_t n, double start, double step)
+{
+  std::vector<double> times(n);
+  for (std::size_t i = 0; i < n; ++i)
+    times[i] = start + step * static_cast<double>(i);
+  return times;
+}
+
+/// Write one scan with a single time field into a fresh folder \a dir and read it
+/// back through the sequence reader.
+ScanFrame
+readTimedScan(const fs::path& dir,
+              const Cloud& points,
+              const ExtraField& time_field,
+              std::uint32_t height = 1)
+{
+  fs::create_directories(dir);
+  writePcdWithFields(dir / "000000.pcd", points, {time_field}, height);
+  return SequenceReader(dir.string()).read(0);
+}
+
+/// Expect \a frame to carry no times and a warning naming \a field and \a phrase,
+/// with its cloud still read (\a num_points points).
+void
+expectTimesRejected(const ScanFrame& frame,
+                    const std::string& field,
+                    const std::string& phrase,
+                    std::size_t num_points)
+{
+  EXPECT_TRUE(frame.point_times_s.empty());
+  EXPECT_TRUE(frame.time_field.empty()) << frame.time_field;
+  EXPECT_NE(frame.time_warning.find("'" + field + "'"), std::string::npos)
+      << frame.time_warning;
+  EXPECT_NE(frame.time_warning.find(phrase), std::string::npos)
+      << "expected '" << phrase << "' in: " << frame.time_warning;
+  ASSERT_TRUE(frame.cloud);
+  EXPECT_EQ(frame.cloud->size(), num_points) << "the scan itself must still be read";
 }
 
 } // namespace
@@ -620,6 +733,297 @@ TEST(SequenceReader, ContinuesAfterBadFrames)
   EXPECT_EQ(fs::path(bad_paths[1]).filename(), kittiName(2));
   EXPECT_EQ(fs::path(bad_paths[2]).filename(), kittiName(3));
   EXPECT_EQ(frame.cloud->front().intensity, 4.0f);
+}
+
+// ---------------------------------------------------------------- per-point times
+
+TEST(SequenceReaderPointTimes, FloatSecondsAreCentredOnTheSweep)
+{
+  const fs::path dir = pcl_rast_test::makeTempDir("seq");
+  const Cloud points = randomCloud(1001, 21);
+  // Velodyne-like `time` in s from 0 to 0.1, and a `timestamp` field that must lose
+  // against it (priority: time first).
+  fs::create_directories(dir / "scan");
+  writePcdWithFields(
+      dir / "scan" / "000000.pcd",
+      points,
+      {{"timestamp", pcl::PCLPointField::FLOAT64, std::vector<double>(1001, 42.0)},
+       {"time", pcl::PCLPointField::FLOAT32, rampTimes(1001, 0.0, 1e-4)}});
+  const ScanFrame frame = SequenceReader((dir / "scan").string()).read(0);
+  EXPECT_EQ(frame.time_field, "time");
+  EXPECT_TRUE(frame.time_warning.empty()) << frame.time_warning;
+  ASSERT_EQ(frame.point_times_s.size(), frame.cloud->size());
+  ASSERT_EQ(frame.point_times_s.size(), 1001u);
+  EXPECT_NEAR(frame.point_times_s.front(), -0.05, 1e-6);
+  EXPECT_NEAR(frame.point_times_s[500], 0.0, 1e-6);
+  EXPECT_NEAR(frame.point_times_s.back(), 0.05, 1e-6);
+  EXPECT_NEAR(frame.point_times_s[100], 0.01 - 0.05, 1e-6);
+
+  // readScan alone gives the same cloud.
+  expectCloudsNear(*frame.cloud, *readScan(frame.path), 0.0f);
+}
+
+TEST(SequenceReaderPointTimes, OrganizedOusterNanosecondsRestartEachRow)
+{
+  // Ouster-like: 16 beams (rows) x 64 columns, uint32 `t` in ns since the sweep start,
+  // increasing along each row and starting again on the next one (with a 100 ns
+  // offset per beam). Read as one list, the 15 restarts would be 15 of 1023 steps
+  // backwards (1.5 % > 1 %): only the per-row check accepts it.
+  const std::uint32_t rows = 16, cols = 64;
+  const double column_ns = 1562500.0; // 64 columns in 0.1 s
+  const Cloud points = randomCloud(rows * cols, 22);
+  ExtraField t{"t", pcl::PCLPointField::UINT32, {}};
+  for (std::uint32_t r = 0; r < rows; ++r)
+    for (std::uint32_t c = 0; c < cols; ++c)
+      t.values.push_back(c * column_ns + r * 100.0);
+  const ScanFrame frame =
+      readTimedScan(pcl_rast_test::makeTempDir("seq") / "os", points, t, rows);
+  EXPECT_EQ(frame.time_field, "t");
+  EXPECT_TRUE(frame.time_warning.empty()) << frame.time_warning;
+  ASSERT_EQ(frame.point_times_s.size(), rows * cols);
+
+  const double mid_ns = 0.5 * (0.0 + (63 * column_ns + 15 * 100.0));
+  auto expected_s = [&](std::uint32_t r, std::uint32_t c) {
+    return (c * column_ns + r * 100.0 - mid_ns) * 1e-9;
+  };
+  EXPECT_NEAR(frame.point_times_s[5 * cols + 10], expected_s(5, 10), 1e-7);
+  EXPECT_NEAR(frame.point_times_s[0], expected_s(0, 0), 1e-7);
+  EXPECT_NEAR(frame.point_times_s[rows * cols - 1], expected_s(15, 63), 1e-7);
+  // Every row starts near -span/2 again.
+  for (std::uint32_t r = 0; r < rows; ++r)
+    EXPECT_NEAR(frame.point_times_s[r * cols], -0.0492, 1e-4) << "row " << r;
+}
+
+TEST(SequenceReaderPointTimes, AbsoluteDoubleTimestampKeepsMicroseconds)
+{
+  // Hesai-like absolute times around 1.7e9 s: a float has a 128 s step there, so only
+  // reading them as double and subtracting in double keeps the 0.1 ms steps.
+  const Cloud points = randomCloud(1000, 23);
+  const double t0 = 1.7e9 + 0.123456;
+  const ScanFrame frame = readTimedScan(
+      pcl_rast_test::makeTempDir("seq") / "hesai",
+      points,
+      {"timestamp", pcl::PCLPointField::FLOAT64, rampTimes(1000, t0, 1e-4)});
+  EXPECT_EQ(frame.time_field, "timestamp");
+  EXPECT_TRUE(frame.time_warning.empty()) << frame.time_warning;
+  ASSERT_EQ(frame.point_times_s.size(), 1000u);
+  const double mid = 0.5 * 999 * 1e-4;
+  for (std::size_t i : {0u, 1u, 2u, 377u, 998u, 999u})
+    EXPECT_NEAR(frame.point_times_s[i], i * 1e-4 - mid, 1e-6) << "point " << i;
+}
+
+TEST(SequenceReaderPointTimes, NonFiniteTimeIsRejected)
+{
+  const fs::path dir = pcl_rast_test::makeTempDir("seq");
+  const Cloud points = randomCloud(200, 24);
+  struct Case
+  {
+    const char* field;
+    std::uint8_t datatype;
+    std::size_t index;
+    double bad_value;
+    const char* phrase;
+  };
+  for (const Case& c : {Case{"time",
+                             pcl::PCLPointField::FLOAT32,
+                             7,
+                             std::numeric_limits<double>::quiet_NaN(),
+                             "NaN"},
+                        Case{"ts",
+                             pcl::PCLPointField::FLOAT64,
+                             150,
+                             std::numeric_limits<double>::infinity(),
+                             "infinite"}}) {
+    std::vector<double> times = rampTimes(200, 0.0, 5e-4);
+    times[c.index] = c.bad_value;
+    expectTimesRejected(
+        readTimedScan(dir / c.field, points, {c.field, c.datatype, times}),
+        c.field,
+        c.phrase,
+        200);
+  }
+}
+
+TEST(SequenceReaderPointTimes, EqualTimesAreRejected)
+{
+  const Cloud points = randomCloud(100, 25);
+  expectTimesRejected(
+      readTimedScan(
+          pcl_rast_test::makeTempDir("seq") / "eq",
+          points,
+          {"time", pcl::PCLPointField::FLOAT32, std::vector<double>(100, 0.05)}),
+      "time",
+      "equal",
+      100);
+}
+
+TEST(SequenceReaderPointTimes, ShuffledOrderIsNotMonotonic)
+{
+  const fs::path dir = pcl_rast_test::makeTempDir("seq");
+  const Cloud sweep = randomCloud(1000, 26);
+  const std::vector<double> times = rampTimes(1000, 0.0, 1e-4);
+
+  // The same points and times, stored in a shuffled order (fixed seed).
+  std::vector<std::size_t> order(1000);
+  for (std::size_t i = 0; i < order.size(); ++i)
+    order[i] = i;
+  std::shuffle(order.begin(), order.end(), std::mt19937(26));
+  Cloud shuffled;
+  std::vector<double> shuffled_times;
+  for (std::size_t i : order) {
+    shuffled.push_back(sweep[i]);
+    shuffled_times.push_back(times[i]);
+  }
+  expectTimesRejected(
+      readTimedScan(dir / "shuffled",
+                    shuffled,
+                    {"time", pcl::PCLPointField::FLOAT32, shuffled_times}),
+      "time",
+      "not monotonic",
+      1000);
+
+  // A few restarts (4 rows of 250 stored as one list: 3 of 999 steps back, 0.3 %)
+  // are within the 1 % allowed.
+  std::vector<double> rows_times;
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 250; ++c)
+      rows_times.push_back(c * 4e-4);
+  const ScanFrame rows = readTimedScan(
+      dir / "rows", sweep, {"offset_time", pcl::PCLPointField::FLOAT64, rows_times});
+  EXPECT_TRUE(rows.time_warning.empty()) << rows.time_warning;
+  EXPECT_EQ(rows.time_field, "offset_time");
+  EXPECT_EQ(rows.point_times_s.size(), 1000u);
+}
+
+TEST(SequenceReaderPointTimes, UnitFollowsTheSpan)
+{
+  const fs::path dir = pcl_rast_test::makeTempDir("seq");
+  const Cloud points = randomCloud(101, 27);
+  // A 0.1 s sweep in s, ms, us and ns: the first unit that makes the span lie in
+  // [0.005, 0.5] s is taken, so all four give -0.05 ... +0.05 s.
+  int k = 0;
+  for (double span : {0.1, 100.0, 1e5, 1e8}) {
+    const ScanFrame frame = readTimedScan(
+        dir / ("ok" + std::to_string(k++)),
+        points,
+        {"time", pcl::PCLPointField::FLOAT64, rampTimes(101, 0.0, span / 100)});
+    EXPECT_TRUE(frame.time_warning.empty()) << span << ": " << frame.time_warning;
+    ASSERT_EQ(frame.point_times_s.size(), 101u) << span;
+    EXPECT_NEAR(frame.point_times_s.front(), -0.05, 1e-6) << span;
+    EXPECT_NEAR(frame.point_times_s.back(), 0.05, 1e-6) << span;
+  }
+
+  // Spans that are no sweep in any unit: 2 (2 s or 2 ms), 1000 (1 s or 1 ms),
+  // 1e6 (1 s or 1 ms).
+  for (double span : {2.0, 1000.0, 1e6})
+    expectTimesRejected(
+        readTimedScan(
+            dir / ("bad" + std::to_string(k++)),
+            points,
+            {"time", pcl::PCLPointField::FLOAT64, rampTimes(101, 0.0, span / 100)}),
+        "time",
+        "fits no unit",
+        101);
+
+  // A span of 50 cannot be told from a 50 ms sweep: the rule reads it as ms.
+  const ScanFrame fifty =
+      readTimedScan(dir / "fifty",
+                    points,
+                    {"time", pcl::PCLPointField::FLOAT64, rampTimes(101, 0.0, 0.5)});
+  EXPECT_TRUE(fifty.time_warning.empty()) << fifty.time_warning;
+  ASSERT_EQ(fifty.point_times_s.size(), 101u);
+  EXPECT_NEAR(fifty.point_times_s.back(), 0.025, 1e-6);
+}
+
+TEST(SequenceReaderPointTimes, PlyTimeProperty)
+{
+  const fs::path dir = pcl_rast_test::makeTempDir("seq");
+  fs::create_directories(dir / "ascii");
+  writeText(dir / "ascii" / "000000.ply",
+            "ply\nformat ascii 1.0\nelement vertex 5\n"
+            "property float x\nproperty float y\nproperty float z\n"
+            "property float intensity\nproperty float time\nend_header\n"
+            "1 0 0 0.1 0\n0 1 0 0.2 0.025\n-1 0 0 0.3 0.05\n0 -1 0 0.4 0.075\n"
+            "1 1 0 0.5 0.1\n");
+  const ScanFrame frame = SequenceReader((dir / "ascii").string()).read(0);
+  EXPECT_EQ(frame.time_field, "time");
+  EXPECT_TRUE(frame.time_warning.empty()) << frame.time_warning;
+  ASSERT_EQ(frame.cloud->size(), 5u);
+  ASSERT_EQ(frame.point_times_s.size(), 5u);
+  const float expected[5] = {-0.05f, -0.025f, 0.0f, 0.025f, 0.05f};
+  for (std::size_t i = 0; i < 5; ++i)
+    EXPECT_NEAR(frame.point_times_s[i], expected[i], 1e-6) << "point " << i;
+
+  // Binary little-endian PLY with an absolute double `timestamp`.
+  fs::create_directories(dir / "binary");
+  {
+    std::ofstream out(dir / "binary" / "000000.ply", std::ios::binary);
+    out << "ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+           "property float x\nproperty float y\nproperty float z\n"
+           "property double timestamp\nend_header\n";
+    for (int i = 0; i < 3; ++i) {
+      const float xyz[3] = {1.0f + i, 2.0f, 3.0f};
+      const double t = 1.7e9 + 0.04 * i;
+      out.write(reinterpret_cast<const char*>(xyz), sizeof xyz);
+      out.write(reinterpret_cast<const char*>(&t), sizeof t);
+    }
+  }
+  const ScanFrame binary = SequenceReader((dir / "binary").string()).read(0);
+  EXPECT_EQ(binary.time_field, "timestamp");
+  EXPECT_TRUE(binary.time_warning.empty()) << binary.time_warning;
+  ASSERT_EQ(binary.point_times_s.size(), 3u);
+  EXPECT_NEAR(binary.point_times_s[0], -0.04, 1e-6);
+  EXPECT_NEAR(binary.point_times_s[1], 0.0, 1e-6);
+  EXPECT_NEAR(binary.point_times_s[2], 0.04, 1e-6);
+}
+
+TEST(SequenceReaderPointTimes, DroppedPointsKeepTimesAligned)
+{
+  Cloud points = randomCloud(100, 28);
+  std::vector<double> times = rampTimes(100, 0.0, 1e-3); // 0 ... 0.099 s
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  points[10].x = nan;
+  points[50].y = nan;
+  points[70].z = std::numeric_limits<float>::infinity();
+  // The time of a dropped point does not count, even when it is NaN itself.
+  times[10] = std::numeric_limits<double>::quiet_NaN();
+  const ScanFrame frame = readTimedScan(pcl_rast_test::makeTempDir("seq") / "drop",
+                                        points,
+                                        {"time", pcl::PCLPointField::FLOAT32, times});
+  EXPECT_EQ(frame.num_dropped_non_finite, 3u);
+  EXPECT_TRUE(frame.time_warning.empty()) << frame.time_warning;
+  ASSERT_EQ(frame.cloud->size(), 97u);
+  ASSERT_EQ(frame.point_times_s.size(), 97u);
+
+  // Output point 60 is input point 62 (10 and 50 dropped before it).
+  const double mid = 0.5 * 0.099;
+  EXPECT_EQ((*frame.cloud)[60].x, points[62].x);
+  EXPECT_NEAR(frame.point_times_s[60], 0.062 - mid, 1e-6);
+  // And every kept point has its own time.
+  std::size_t k = 0;
+  for (std::size_t i = 0; i < 100; ++i) {
+    if (i == 10 || i == 50 || i == 70)
+      continue;
+    EXPECT_NEAR(frame.point_times_s[k], times[i] - mid, 1e-6) << "input point " << i;
+    ++k;
+  }
+}
+
+TEST(SequenceReaderPointTimes, ScansWithoutTimeFieldHaveNoTimesAndNoWarning)
+{
+  const fs::path dir = pcl_rast_test::makeTempDir("seq");
+  const Cloud cloud = randomCloud(50, 29);
+  fs::create_directories(dir / "bin");
+  writeKittiBin((dir / "bin" / "000000.bin").string(), cloud);
+  fs::create_directories(dir / "pcd");
+  ASSERT_EQ(pcl::io::savePCDFileBinary((dir / "pcd" / "000000.pcd").string(), cloud), 0);
+  for (const char* sub : {"bin", "pcd"}) {
+    const ScanFrame frame = SequenceReader((dir / sub).string()).read(0);
+    EXPECT_EQ(frame.cloud->size(), 50u) << sub;
+    EXPECT_TRUE(frame.point_times_s.empty()) << sub;
+    EXPECT_TRUE(frame.time_field.empty()) << sub;
+    EXPECT_TRUE(frame.time_warning.empty()) << sub << ": " << frame.time_warning;
+  }
 }
 
 // ---------------------------------------------------------------- real data

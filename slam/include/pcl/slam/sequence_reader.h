@@ -43,7 +43,8 @@ private:
 /// `.pcd` (ascii, binary, binary_compressed) or `.ply`. PCD/PLY fields of any numeric
 /// type are converted to float; an intensity field may also be named
 /// `scalar_intensity`, `reflectance`, `remission` or `i`; without one, intensity is 0.
-/// The result is unorganized (height 1) and dense.
+/// The result is unorganized (height 1) and dense. Per-point times are not read here:
+/// SequenceReader::read() gives them (ScanFrame::point_times_s).
 /// \param[in] path the scan file
 /// \param[out] num_dropped_non_finite if not null, the number of dropped points
 /// \return the cloud (never null)
@@ -80,6 +81,22 @@ struct SequenceReaderOptions
 };
 
 /// \brief One scan of a sequence.
+///
+/// **Per-point time** (for motion compensation). A PCD or PLY scan may carry the time
+/// of every point in a field; the first present of `time` (Velodyne / rslidar drivers,
+/// seconds since the sweep start), `t` (Ouster, uint32 nanoseconds), `timestamp`
+/// (Hesai and others, often absolute seconds as double), `time_stamp`, `offset_time`
+/// (Livox, nanoseconds) and `ts` is used, whatever its numeric type (doubles are read
+/// as double, so absolute times keep their precision). Only the kept points count
+/// (a dropped point's time is ignored, so point_times_s stays aligned with `cloud`).
+/// The unit follows from the span of the raw values: the first of s, ms, us, ns that
+/// makes it lie in [0.005, 0.5] s (a 2-100 Hz sweep). The times are then centred on
+/// the middle of the sweep and stored as float. They are rejected (point_times_s and
+/// time_field empty, time_warning saying why; the cloud is read as usual) when a value
+/// is NaN or infinite, when all are equal, when the span fits no unit, or when more than
+/// 1 % of the steps between consecutive points go backwards (along each row of an
+/// organized cloud, along the whole list otherwise): the cloud has lost its firing
+/// order. KITTI `.bin` scans have no time field: no times, no warning.
 /// \ingroup slam
 struct ScanFrame
 {
@@ -95,6 +112,14 @@ struct ScanFrame
   pcl::PointCloud<pcl::PointXYZI>::Ptr cloud;
   /// Number of points dropped because a value was NaN or Inf.
   std::size_t num_dropped_non_finite = 0;
+  /// Per point of `cloud` (same order), its time in seconds relative to the middle
+  /// of the sweep: t - (t_min + t_max) / 2, so values lie in [-span/2, span/2].
+  /// Empty when the scan has no usable time field (see time_warning).
+  std::vector<float> point_times_s;
+  /// The field the times came from ("time", "t", ...), empty when none.
+  std::string time_field;
+  /// Why a time field that was present was not used (empty otherwise).
+  std::string time_warning;
 };
 
 /// \brief Streams the scans of a folder in order, one frame in memory at a time.
@@ -106,6 +131,8 @@ struct ScanFrame
 /// (`000010.bin` after `000009.bin`, `251370668.pcd`), or lexicographically when a
 /// name has no digits. An optional `times.txt` (one time in seconds per line) in the
 /// scan folder or its parent gives the timestamps; otherwise timestamp = file index.
+/// Each frame of a PCD or PLY scan with a time field also carries the time of every
+/// point (ScanFrame::point_times_s, validated: see ScanFrame).
 ///
 /// \code
 /// pcl::rast::SequenceReader reader("data/kitti-raw-78");
@@ -159,7 +186,9 @@ public:
   /// \throws std::out_of_range when i >= size()
   double timestamp(std::size_t i) const;
 
-  /// \brief Read the \a i-th selected frame (random access; does not move the cursor).
+  /// \brief Read the \a i-th selected frame (random access; does not move the cursor),
+  /// with its per-point times when the scan has a usable time field. An unusable one
+  /// is not an error: the frame says why in ScanFrame::time_warning.
   /// \throws std::out_of_range when i >= size()
   /// \throws ScanReadError when the scan cannot be read
   ScanFrame read(std::size_t i) const;
