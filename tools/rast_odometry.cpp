@@ -2,7 +2,8 @@
 /// \brief pcl_rast_odometry: rasterized-ORB LiDAR odometry over a folder of scans.
 ///
 ///   pcl_rast_odometry -input DIR -output DIR [-first N] [-last N] [-stride K]
-///                     [-sensor auto|hdl64|vlp16|os1-64|os0-128] [options]
+///                     [-sensor auto|hdl64|vlp16|os1-64|os0-128] [-deskew auto|on|off]
+///                     [options]
 ///
 /// Writes DIR/poses_kitti.txt (one line per selected input frame, LiDAR frame, first
 /// pose the identity), DIR/poses_tum.txt (times.txt timestamps when present, else the
@@ -23,6 +24,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <map>
@@ -47,7 +49,9 @@ run(int argc, char** argv)
   using namespace pcl_rast_tools;
   namespace rast = pcl::rast;
   rast::OdometryParams params;
-  std::string input, output, sensor = "auto";
+  std::string input, output, sensor = "auto", deskew = "auto";
+  double deskew_reference_deg = 0.0;
+  bool deskew_ccw = false;
   int first = 0, last = -1, stride = 1;
   bool no_refine = false, no_loose_rematch = false, level = params.ground.level_cloud;
   int max_features = params.orb.max_features;
@@ -64,6 +68,16 @@ run(int argc, char** argv)
   args.addInt("first", "first scan (0-based, sorted order)", &first);
   args.addInt("last", "last scan, inclusive (-1: the last one)", &last);
   args.addInt("stride", "use every K-th scan (5 turns 10 Hz into 2 Hz)", &stride);
+  args.addChoice("deskew",
+                 "motion compensation of raw sweeps (auto: with the scans' time field, or "
+                 "from the azimuth for KITTI .bin scans; doc/odometry.md)",
+                 &deskew, deskewChoices());
+  args.addDouble("deskew-reference",
+                 "azimuth times: azimuth [deg] of the column firing at the frame time "
+                 "(0: forward, KITTI; 180: behind)",
+                 &deskew_reference_deg);
+  args.addSwitch("deskew-ccw", "azimuth times: the head spins counter-clockwise seen from above",
+                 &deskew_ccw);
   args.addChoice("sensor", "parameter preset (auto: guessed from the first scan)", &sensor,
                  sensorChoices());
   args.addSwitch("level", "level the non-ground cloud by the ground normal (tilted sensors)",
@@ -101,6 +115,9 @@ run(int argc, char** argv)
   // Validate everything before any work.
   if (first < 0 || stride < 1 || last < -1 || (last >= 0 && last < first))
     throw std::invalid_argument("need -first >= 0, -stride >= 1, -last -1 or >= -first");
+  if (!(std::abs(deskew_reference_deg) <= 360.0))
+    throw std::invalid_argument("-deskew-reference must be within +-360 deg, got " +
+                                std::to_string(deskew_reference_deg));
   // The flags given win over the sensor preset, which is known only once the input is
   // listed; they are checked before any work all the same.
   const rast::OdometryParams cli_params = params;
@@ -149,6 +166,12 @@ run(int argc, char** argv)
   std::fprintf(stderr, "Sensor preset %s (%s)\n", rast::toString(preset), sensor_reason.c_str());
   params = cli_params;
   rast::applySensorPreset(preset, params);
+  std::string deskew_reason;
+  params.deskew.mode = resolveDeskewMode(deskew, reader, deskew_reason);
+  params.deskew.sweep.reference_azimuth_deg = deskew_reference_deg;
+  params.deskew.sweep.clockwise = !deskew_ccw;
+  std::fprintf(stderr, "Deskew %s (%s)\n", rast::toString(params.deskew.mode),
+               deskew_reason.c_str());
   applyFlags(params);
 
   const InjectedFault fault = injectedFault({"tracking"});
@@ -157,10 +180,12 @@ run(int argc, char** argv)
   std::vector<double> times;
   std::ostringstream csv;
   csv << "frame,status,ground_ms,raster_ms,orb_ms,match_ms,refine_ms,keyframe_ms,total_ms,"
-         "num_features,num_inliers,keyframe,degraded\n";
+         "num_features,num_inliers,keyframe,degraded,deskew_ms,deskew\n";
   std::map<std::string, int> status_counts;
   std::vector<double> totals;
   std::size_t num_tracked = 0;
+  std::size_t time_warnings = 0, second_passes = 0;
+  std::map<std::string, std::size_t> deskewed; // frames per time source
   ProgressBar bar("Odometry", reader.size());
   std::exception_ptr run_error; // ends the run; the frames before it are written
   for (std::size_t i = 0; i < reader.size() && !run_error; ++i) {
@@ -168,7 +193,10 @@ run(int argc, char** argv)
     try {
       fault.check("tracking", i);
       const rast::ScanFrame frame = reader.read(i);
-      r = odometry.processFrame(frame.cloud, frame.timestamp_s, i);
+      if (!frame.time_warning.empty() && time_warnings++ == 0)
+        std::fprintf(stderr, "\npcl_rast_odometry: warning: %s: %s (reported once per run)\n",
+                     frame.path.c_str(), frame.time_warning.c_str());
+      r = odometry.processFrame(frame.cloud, frame.timestamp_s, i, frame.point_times_s);
     } catch (const rast::ScanReadError& e) {
       std::fprintf(stderr, "\nframe %zu: skipped: %s\n", i, e.what());
       r = odometry.skipFrame(reader.timestamp(i), i, e.what());
@@ -190,7 +218,12 @@ run(int argc, char** argv)
         << fmt(t.raster_ms) << ',' << fmt(t.orb_ms) << ',' << fmt(t.match_ms) << ','
         << fmt(t.refine_ms) << ',' << fmt(t.keyframe_ms) << ',' << fmt(t.total_ms) << ','
         << r.num_features << ',' << r.num_inliers << ',' << (r.keyframe ? 1 : 0) << ','
-        << (r.degraded ? 1 : 0) << '\n';
+        << (r.degraded ? 1 : 0) << ',' << fmt(t.deskew_ms) << ','
+        << (r.deskew_times.empty() ? "none" : r.deskew_times)
+        << (r.deskew_second_pass ? "+2" : "") << '\n';
+    if (!r.deskew_times.empty())
+      ++deskewed[r.deskew_times];
+    second_passes += r.deskew_second_pass ? 1 : 0;
     bar.update(i + 1);
   }
   bar.finish();
@@ -217,6 +250,11 @@ run(int argc, char** argv)
   summary["tracking_status"] = status_counts;
   summary["median_frame_ms"] = median;
   summary["sensor"] = rast::toString(preset);
+  summary["deskew"] = {{"mode", rast::toString(params.deskew.mode)},
+                       {"reason", deskew_reason},
+                       {"frames_by_time_source", deskewed},
+                       {"second_passes", second_passes},
+                       {"time_field_warnings", time_warnings}};
   summary["max_rotation_error"] = rast::maxRotationError(poses);
   summary["error"] = run_error ? nlohmann::json(error_message) : nlohmann::json(nullptr);
   rast::writeFileAtomically(output + "/summary.json", summary.dump(2) + "\n");

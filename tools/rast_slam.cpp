@@ -34,6 +34,7 @@
 #include <filesystem>
 #include <iostream>
 #include <limits>
+#include <map>
 #include <mutex>
 #include <optional>
 #include <sstream>
@@ -331,7 +332,9 @@ run(int argc, char** argv)
   bool global_ba = defaults.loop_closing.global_bundle_adjustment;
   double map_leaf_m = 0.2;
   bool software_render = false, quiet = false;
-  std::string sensor = "auto";
+  std::string sensor = "auto", deskew = "auto";
+  double deskew_reference_deg = 0.0;
+  bool deskew_ccw = false;
 
   ArgParser parser("pcl_rast_slam",
                    "LiDAR SLAM on rasterized ORB features (tracking, local mapping with optional "
@@ -350,6 +353,16 @@ run(int argc, char** argv)
   parser.addInt("stride", "use every stride-th scan", &stride);
   parser.addChoice("threads", "on: three threads; off: deterministic, one thread", &threads,
                    {"on", "off"});
+  parser.addChoice("deskew",
+                   "motion compensation of raw sweeps (auto: with the scans' time field, or "
+                   "from the azimuth for KITTI .bin scans; doc/odometry.md)",
+                   &deskew, pcl_rast_tools::deskewChoices());
+  parser.addDouble("deskew-reference",
+                   "azimuth times: azimuth [deg] of the column firing at the frame time "
+                   "(0: forward, KITTI; 180: behind)",
+                   &deskew_reference_deg);
+  parser.addSwitch("deskew-ccw",
+                   "azimuth times: the head spins counter-clockwise seen from above", &deskew_ccw);
   parser.addChoice("sensor", "parameter preset (auto: guessed from the first scan)", &sensor,
                    pcl_rast_tools::sensorChoices());
   parser.addSwitch("no-loop", "disable loop closure", &no_loop);
@@ -382,6 +395,9 @@ run(int argc, char** argv)
   if (young_map_scans < 1)
     throw std::invalid_argument("-young-map-scans must be >= 1, got " +
                                 std::to_string(young_map_scans));
+  if (!(std::abs(deskew_reference_deg) <= 360.0))
+    throw std::invalid_argument("-deskew-reference must be within +-360 deg, got " +
+                                std::to_string(deskew_reference_deg));
   if (!(map_leaf_m > 0.0))
     throw std::invalid_argument("-map-leaf must be > 0, got " + std::to_string(map_leaf_m));
   if (ba && no_ba)
@@ -423,6 +439,12 @@ run(int argc, char** argv)
       pcl_rast_tools::resolveSensorPreset(sensor, reader, sensor_reason);
   std::cerr << "Sensor preset " << rast::toString(preset) << " (" << sensor_reason << ")\n";
   rast::applySensorPreset(preset, params.odometry);
+  std::string deskew_reason;
+  params.odometry.deskew.mode = pcl_rast_tools::resolveDeskewMode(deskew, reader, deskew_reason);
+  params.odometry.deskew.sweep.reference_azimuth_deg = deskew_reference_deg;
+  params.odometry.deskew.sweep.clockwise = !deskew_ccw;
+  std::cerr << "Deskew " << rast::toString(params.odometry.deskew.mode) << " (" << deskew_reason
+            << ")\n";
   if (parser.given("young-map-scans"))
     params.odometry.dense.young_map_scans = young_map_scans;
   if (!params.isValid(&why))
@@ -464,6 +486,8 @@ run(int argc, char** argv)
     });
   json skipped = json::array();
   std::size_t processed = 0;
+  std::size_t time_warnings = 0, second_passes = 0;
+  std::map<std::string, std::size_t> deskewed; // frames per time source
   // An error after frames were processed ends the run, not its results: what was
   // processed is written below, summary.json names the error, and the exit code is 3.
   std::exception_ptr run_error;
@@ -481,7 +505,15 @@ run(int argc, char** argv)
                              {"reason", "empty scan"}});
         }
         else {
-          slam.addScan(item.frame.cloud, item.timestamp_s, item.sequence_index, item.path);
+          if (!item.frame.time_warning.empty() && time_warnings++ == 0)
+            std::cerr << "\npcl_rast_slam: warning: " << item.path << ": "
+                      << item.frame.time_warning << " (reported once per run)\n";
+          const rast::OdometryFrameResult r =
+              slam.addScan(item.frame.cloud, item.timestamp_s, item.sequence_index,
+                           item.frame.point_times_s, item.path);
+          if (!r.deskew_times.empty())
+            ++deskewed[r.deskew_times];
+          second_passes += r.deskew_second_pass ? 1 : 0;
         }
       }
       else {
@@ -597,6 +629,10 @@ run(int argc, char** argv)
   summary["frames_selected"] = reader.size();
   summary["interrupted"] = interrupted;
   summary["error"] = run_error ? json(error_message) : json(nullptr);
+  summary["deskew"] = {{"mode", rast::toString(params.odometry.deskew.mode)},
+                       {"frames_by_time_source", deskewed},
+                       {"second_passes", second_passes},
+                       {"time_field_warnings", time_warnings}};
   {
     // How far the stored poses are from SO(3) (max of |R^T R - I| and |det R - 1|).
     rast::PoseVector stored = kf_poses;
@@ -637,6 +673,8 @@ run(int argc, char** argv)
   summary["render_message"] = render.message;
   summary["params"] = {{"threads", threads},
                        {"sensor", rast::toString(preset)},
+                       {"deskew", rast::toString(params.odometry.deskew.mode)},
+                       {"deskew_reason", deskew_reason},
                        {"sensor_choice", sensor_reason},
                        {"loop_closure", params.loop_closing.enable},
                        {"revisit_culling", params.loop_closing.cull_revisits},

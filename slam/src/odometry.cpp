@@ -294,6 +294,8 @@ OdometryParams::isValid(std::string* why) const
     reason = "dense." + sub;
   else if (!turn_search.isValid(&sub))
     reason = "turn_search." + sub;
+  else if (!deskew.isValid(&sub))
+    reason = "deskew." + sub;
   else if (keyframe_min_frames < 1)
     reason = "keyframe_min_frames must be >= 1, got " + std::to_string(keyframe_min_frames);
   else if (keyframe_max_common_points < 0)
@@ -314,6 +316,38 @@ OdometryParams::isValid(std::string* why) const
     reason = "keyframe_min_inliers must be >= 0";
   else if (!finitePositive(keyframe_max_distance_m) || !finitePositive(keyframe_max_rotation_deg))
     reason = "keyframe_max_distance_m and keyframe_max_rotation_deg must be > 0";
+  if (why)
+    *why = reason;
+  return reason.empty();
+}
+
+const char*
+toString(DeskewMode mode)
+{
+  switch (mode) {
+  case DeskewMode::kAuto:
+    return "auto";
+  case DeskewMode::kOn:
+    return "on";
+  case DeskewMode::kOff:
+    return "off";
+  }
+  return "unknown";
+}
+
+bool
+DeskewParams::isValid(std::string* why) const
+{
+  std::string reason, sub;
+  if (!sweep.isValid(&sub))
+    reason = "sweep." + sub;
+  else if (!std::isfinite(sweep_period_s) || sweep_period_s > 1.0)
+    reason = "sweep_period_s must be finite and <= 1 s (<= 0: the frame interval), got " +
+             std::to_string(sweep_period_s);
+  else if (!(second_pass_translation_m >= 0.0) || !(second_pass_rotation_deg >= 0.0))
+    reason = "second_pass_translation_m and second_pass_rotation_deg must be >= 0";
+  else if (bins < 1 || bins > 65536)
+    reason = "bins must be in [1, 65536], got " + std::to_string(bins);
   if (why)
     *why = reason;
   return reason.empty();
@@ -369,7 +403,16 @@ struct Odometry::Impl
   OdometryFrameResult
   skip(double timestamp_s, std::size_t frame_index, const std::string& reason);
   OdometryFrameResult
-  track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input, OdometryFrameResult result);
+  track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
+        const std::vector<float>& point_times,
+        OdometryFrameResult result);
+  /// The times to compensate \a input with (params.deskew): the given ones, times from
+  /// the azimuth, or none (null). \a storage holds azimuth times.
+  const std::vector<float>* sweepTimes(const pcl::PointCloud<pcl::PointXYZI>& input,
+                                       const std::vector<float>& given,
+                                       double frame_interval_s,
+                                       std::vector<float>& storage,
+                                       std::string& source) const;
   KeyFrame::Ptr
   makeKeyFrame(const OdometryFrameResult& result,
                RasterFeatureSet&& features,
@@ -488,6 +531,7 @@ Odometry::Impl::insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud,
 
 OdometryFrameResult
 Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr,
+                      const std::vector<float>& point_times,
                       OdometryFrameResult result)
 {
   const auto& input = *input_ptr;
@@ -508,10 +552,21 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
                      " finite and in range): constant-velocity prediction";
     return result;
   }
-  const auto& cloud = input_ptr;
+  // 0b. Motion compensation (deskew.h) with the previous frame's motion; every step
+  //     below, the key-frame's cloud and the local map use the compensated scan.
+  auto start = Clock::now();
+  const double dt = frameInterval(result.timestamp_s);
+  std::vector<float> azimuth_times;
+  const std::vector<float>* times =
+      sweepTimes(input, point_times, dt, azimuth_times, result.deskew_times);
+  const Pose3d T_motion_prior = T_world_last.inverse() * T_world_prior;
+  pcl::PointCloud<pcl::PointXYZI>::ConstPtr cloud = input_ptr;
+  if (times && num_poses >= 2)
+    cloud = deskewCloud(input, *times, logSE3(T_motion_prior) / dt, params.deskew.bins);
+  result.timings.deskew_ms = msSince(start);
 
   // 1. Ground removal (paper sec. 4), optionally levelling the non-ground cloud.
-  auto start = Clock::now();
+  start = Clock::now();
   ground.setInputCloud(cloud);
   GroundRemovalResult ground_result;
   ground.segment(ground_result);
@@ -615,14 +670,17 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   //    feature-consistency check falls back to dense ICP from the prior, then to the
   //    prior itself.
   start = Clock::now();
+  // Subsample the voxel indices, then copy only the points kept.
+  auto sourcePoints = [&](const pcl::PointCloud<pcl::PointXYZI>& scan) {
+    return odometry_detail::toPoints(
+        scan, odometry_detail::strideSubsample(
+                  odometry_detail::voxelDownsampleIndices(scan, params.dense.source_voxel_size_m,
+                                                          in_range),
+                  static_cast<std::size_t>(params.dense.max_source_points)));
+  };
   Points3f source;
   if (params.registration.refine || !features_ok)
-    // Subsample the voxel indices, then copy only the points kept.
-    source = odometry_detail::toPoints(
-        *cloud, odometry_detail::strideSubsample(
-                    odometry_detail::voxelDownsampleIndices(
-                        *cloud, params.dense.source_voxel_size_m, in_range),
-                    static_cast<std::size_t>(params.dense.max_source_points)));
+    source = sourcePoints(*cloud);
   auto keepDense = [&result](const DenseResult& dense) {
     result.dense_correspondences = dense.num_correspondences;
     result.dense_degenerate_directions = dense.degenerate_directions;
@@ -776,6 +834,28 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   }
   result.timings.refine_ms = msSince(start);
 
+  // 5b. Second pass of the motion compensation: where the estimated motion differs from
+  //     the previous frame's (a stop, a start, a turn), compensate the scan with it and
+  //     refine once more from the estimate.
+  if (times && num_poses >= 2 && result.refined) {
+    start = Clock::now();
+    const Pose3d T_motion = T_world_last.inverse() * result.T_world_lidar;
+    const Pose3d change = T_motion_prior.inverse() * T_motion;
+    if (change.translation().norm() > params.deskew.second_pass_translation_m ||
+        angleDeg(change) > params.deskew.second_pass_rotation_deg) {
+      auto again = deskewCloud(input, *times, logSE3(T_motion) / dt, params.deskew.bins);
+      const DenseResult dense =
+          registerToMap(sourcePoints(*again), map, result.T_world_lidar, params.dense);
+      if (dense.success) {
+        cloud = again;
+        keepDense(dense);
+        result.T_world_lidar = dense.T_world_lidar;
+        result.deskew_second_pass = true;
+      }
+    }
+    result.timings.deskew_ms += msSince(start);
+  }
+
   // 6. Key-frame decision: the paper's rule (sec. 7.3) plus safety rules. The pose is
   //    final here; it is kept on SO(3) (single-precision steps add ~1e-7 each).
   start = Clock::now();
@@ -850,10 +930,41 @@ Odometry::localMapSize() const
   return impl_->map.size();
 }
 
+const std::vector<float>*
+Odometry::Impl::sweepTimes(const pcl::PointCloud<pcl::PointXYZI>& input,
+                           const std::vector<float>& given,
+                           double frame_interval_s,
+                           std::vector<float>& storage,
+                           std::string& source) const
+{
+  if (params.deskew.mode == DeskewMode::kOff)
+    return nullptr;
+  if (!given.empty() && given.size() == input.size()) {
+    source = "field";
+    return &given;
+  }
+  if (params.deskew.mode != DeskewMode::kOn)
+    return nullptr;
+  const double period =
+      params.deskew.sweep_period_s > 0.0 ? params.deskew.sweep_period_s : frame_interval_s;
+  storage = azimuthTimes(input, period, params.deskew.sweep);
+  source = "azimuth";
+  return &storage;
+}
+
 OdometryFrameResult
 Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
                        double timestamp_s,
                        std::size_t frame_index)
+{
+  return processFrame(cloud, timestamp_s, frame_index, {});
+}
+
+OdometryFrameResult
+Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                       double timestamp_s,
+                       std::size_t frame_index,
+                       const std::vector<float>& point_times_s)
 {
   impl_->checkIndex(frame_index);
   const auto start = Clock::now();
@@ -863,7 +974,10 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
   if (!cloud)
     return impl_->skip(timestamp_s, frame_index, "null cloud");
   try {
-    result = impl_->track(cloud, result);
+    result = impl_->track(cloud, point_times_s, result);
+    if (!point_times_s.empty() && point_times_s.size() != cloud->size())
+      result.message += "; " + std::to_string(point_times_s.size()) + " point times for " +
+                        std::to_string(cloud->size()) + " points: ignored";
   } catch (const std::exception& e) {
     // Bad data must not stop the odometry: report it and predict.
     result = OdometryFrameResult();

@@ -623,12 +623,23 @@ RastSlam::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
                   std::size_t frame_index,
                   const std::string& path)
 {
+  return addScan(cloud, timestamp_s, frame_index, {}, path);
+}
+
+OdometryFrameResult
+RastSlam::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                  double timestamp_s,
+                  std::size_t frame_index,
+                  const std::vector<float>& point_times_s,
+                  const std::string& path)
+{
   if (impl_->finished)
     throw std::logic_error("RastSlam::addScan: called after finish()");
   if (impl_->failed())
     impl_->finish(); // joins and rethrows the worker's exception
   const double cpu0 = threadCpuMs();
-  OdometryFrameResult r = impl_->odometry.processFrame(cloud, timestamp_s, frame_index);
+  OdometryFrameResult r =
+      impl_->odometry.processFrame(cloud, timestamp_s, frame_index, point_times_s);
   {
     std::lock_guard<std::mutex> lock(impl_->stats_mutex);
     impl_->cpu_ms["tracking"] += threadCpuMs() - cpu0;

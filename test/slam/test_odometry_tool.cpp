@@ -179,9 +179,45 @@ TEST_F(OdometryTool, BadArgumentsExitOneBeforeAnyWork)
   EXPECT_EQ(runOdometry("-input . -output '" + out.string() + "' -keyframe-min-frames 0", log_),
             1);
   EXPECT_EQ(runOdometry("-input . -output '" + out.string() + "' -max-features abc", log_), 1);
+  EXPECT_EQ(runOdometry("-input . -output '" + out.string() + "' -deskew sometimes", log_), 1);
+  EXPECT_EQ(runOdometry("-input . -output '" + out.string() + "' -deskew-reference 400", log_), 1);
+  EXPECT_NE(readAll(log_).find("-deskew-reference must be within +-360 deg, got 400"),
+            std::string::npos)
+      << readAll(log_);
   EXPECT_FALSE(fs::exists(out)) << "bad arguments must fail before any work";
   EXPECT_EQ(runOdometry("-h", log_), 0);
   EXPECT_NE(readAll(log_).find("-keyframe-min-frames"), std::string::npos);
+  EXPECT_NE(readAll(log_).find("-deskew <auto|on|off>"), std::string::npos) << readAll(log_);
+}
+
+/// -deskew: auto leaves .bin scans (no time field) as they are; on compensates them
+/// with times from the azimuth; the choice and the counts are in summary.json and
+/// timing.csv.
+TEST_F(OdometryTool, DeskewModeIsChosenAndReported)
+{
+  const fs::path seq = sequence();
+  for (const std::string mode : {"auto", "on", "off"}) {
+    const fs::path out = dir_ / ("out_" + mode);
+    ASSERT_EQ(runOdometry("-input '" + seq.string() + "' -output '" + out.string() +
+                              "' -deskew " + mode,
+                          log_),
+              0)
+        << readAll(log_);
+    const auto summary = nlohmann::json::parse(readAll(out / "summary.json"));
+    const auto& deskew = summary["deskew"];
+    EXPECT_EQ(deskew["mode"].get<std::string>(), mode);
+    const auto timing = readLines(out / "timing.csv");
+    ASSERT_EQ(timing.size(), 13u);
+    EXPECT_NE(timing[0].find(",deskew_ms,deskew"), std::string::npos) << timing[0];
+    if (mode == "on") {
+      // Every frame gets azimuth times (before two poses there is no motion to apply).
+      EXPECT_EQ(deskew["frames_by_time_source"]["azimuth"].get<int>(), 12);
+      EXPECT_NE(timing[5].find(",azimuth"), std::string::npos) << timing[5];
+    } else {
+      EXPECT_TRUE(deskew["frames_by_time_source"].empty()) << deskew.dump();
+      EXPECT_NE(timing[5].find(",none"), std::string::npos) << timing[5];
+    }
+  }
 }
 
 } // namespace

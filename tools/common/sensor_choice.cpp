@@ -4,6 +4,8 @@
 #include "sensor_choice.h"
 
 #include <algorithm>
+#include <filesystem>
+#include <stdexcept>
 
 namespace pcl_rast_tools {
 
@@ -34,6 +36,37 @@ resolveSensorPreset(const std::string& choice,
   }
   reason = "no readable scan to guess from: defaults";
   return pcl::rast::SensorPreset::kHdl64;
+}
+
+std::vector<std::string>
+deskewChoices()
+{
+  return {"auto", "on", "off"};
+}
+
+pcl::rast::DeskewMode
+resolveDeskewMode(const std::string& choice,
+                  const pcl::rast::SequenceReader& reader,
+                  std::string& reason)
+{
+  if (choice == "off") {
+    reason = "off: scans used as they are";
+    return pcl::rast::DeskewMode::kOff;
+  }
+  if (choice == "on") {
+    reason = "on: each scan's time field, else times from the azimuth";
+    return pcl::rast::DeskewMode::kOn;
+  }
+  if (choice != "auto")
+    throw std::invalid_argument("-deskew must be auto, on or off, got '" + choice + "'");
+  // Scans without a time field are used as they are: KITTI's .bin scans are motion-
+  // compensated already, and compensating them again made the real KITTI scans of
+  // ../shared/data 1.5-2.6x less smooth (doc/odometry.md).
+  const bool bin = reader.size() > 0 && std::filesystem::path(reader.path(0)).extension() == ".bin";
+  reason = bin ? "auto: .bin scans carry no time field: used as they are (-deskew on: "
+                 "times from the azimuth)"
+               : "auto: scans with a time field are compensated, others used as they are";
+  return pcl::rast::DeskewMode::kAuto;
 }
 
 } // namespace pcl_rast_tools

@@ -21,4 +21,15 @@ pcl::rast::SensorPreset resolveSensorPreset(const std::string& choice,
                                             const pcl::rast::SequenceReader& reader,
                                             std::string& reason);
 
+/// \brief Choices of -deskew: "auto", "on", "off".
+std::vector<std::string> deskewChoices();
+
+/// \brief The odometry's motion compensation for -deskew \a choice. "auto": scans are
+/// compensated with their own time field where they have one and used as they are
+/// otherwise (KITTI's `.bin` scans are compensated already). "on": the time field, else
+/// times from the azimuth. "off": never. \a reason says why (log, summary).
+pcl::rast::DeskewMode resolveDeskewMode(const std::string& choice,
+                                        const pcl::rast::SequenceReader& reader,
+                                        std::string& reason);
+
 } // namespace pcl_rast_tools

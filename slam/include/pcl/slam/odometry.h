@@ -14,6 +14,7 @@
 #include <pcl/features/range_raster_image.h>
 #include <pcl/registration/correspondence_rigid_registration.h>
 #include <pcl/segmentation/sac_ground_removal.h>
+#include <pcl/slam/deskew.h>
 #include <pcl/slam/keyframe.h>
 #include <pcl/slam/pose_io.h>
 
@@ -23,6 +24,7 @@
 #include <cstddef>
 #include <memory>
 #include <string>
+#include <vector>
 
 namespace pcl {
 namespace rast {
@@ -50,6 +52,7 @@ struct OdometryTimings
   double match_ms = 0.0;    ///< matching + RANSAC + pose from correspondences
   double refine_ms = 0.0;   ///< dense point-to-plane refinement
   double keyframe_ms = 0.0; ///< key-frame decision and local-map update
+  double deskew_ms = 0.0;   ///< motion compensation (both passes)
   double total_ms = 0.0;    ///< the whole frame
 };
 
@@ -84,7 +87,43 @@ struct OdometryFrameResult
   /// Dense fallback against a rival optimum: features paired under its motion (0: not
   /// checked).
   int guided_pairs = 0;
+  /// The times the scan was motion-compensated with ("field": its own point times,
+  /// "azimuth": from the azimuth; empty: none; the first two frames have no motion to
+  /// apply yet), and whether it was compensated again with the estimated motion.
+  std::string deskew_times;
+  bool deskew_second_pass = false;
   OdometryTimings timings;
+};
+
+/// \brief When scans are motion-compensated (deskew.h).
+enum class DeskewMode
+{
+  kAuto, ///< when the scan comes with point times (a time field); never from the azimuth
+  kOn,   ///< always: the scan's point times, else times from the azimuth
+  kOff   ///< never
+};
+
+/// \brief "auto", "on", "off".
+const char* toString(DeskewMode mode);
+
+/// \brief Motion compensation of raw sweeps before registration (doc/odometry.md).
+struct DeskewParams
+{
+  DeskewMode mode = DeskewMode::kAuto;
+  /// Times from the azimuth (DeskewMode::kOn without point times): spin direction and
+  /// the column that fires at the frame time; KITTI-style defaults.
+  SweepParams sweep;
+  /// Duration of a sweep for azimuth times [s]; <= 0: the time between frames.
+  double sweep_period_s = 0.0;
+  /// First pass: the motion of the previous frame. When the estimate's motion differs
+  /// from it by more than this over one frame (translation [m] or rotation [deg]), the
+  /// scan is compensated again with the estimated motion and refined once more.
+  double second_pass_translation_m = 0.02;
+  double second_pass_rotation_deg = 0.1;
+  /// Time bins of deskewCloud (one transform each).
+  int bins = 512;
+
+  bool isValid(std::string* why = nullptr) const;
 };
 
 /// \brief Dense point-to-plane tracking of a scan against the local map: a KISS-ICP-like
@@ -226,6 +265,9 @@ struct OdometryParams
   /// ... or rotation [deg].
   double prior_gate_deg = 5.0;
 
+  // ---- motion compensation ----
+  DeskewParams deskew;
+
   // ---- dense refinement ----
   DenseTrackingParams dense;
   /// Dense search from several motion hypotheses when the features fail.
@@ -297,6 +339,15 @@ public:
   processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
                double timestamp_s,
                std::size_t frame_index);
+
+  /// \brief processFrame with the points' times [s] relative to the frame time, one per
+  /// point of \a cloud (ScanFrame::point_times_s; empty: none), for motion compensation
+  /// (OdometryParams::deskew). Times of the wrong count are ignored, with a message.
+  OdometryFrameResult
+  processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+               double timestamp_s,
+               std::size_t frame_index,
+               const std::vector<float>& point_times_s);
 
   /// \brief Account for a frame without a usable scan: constant-velocity
   /// prediction, status kSkipped, never a key-frame.

@@ -205,6 +205,14 @@ public:
                               std::size_t frame_index,
                               const std::string& path = "");
 
+  /// \brief addScan with the points' times relative to the frame time [s], one per
+  /// point (ScanFrame::point_times_s), for motion compensation (OdometryParams::deskew).
+  OdometryFrameResult addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                              double timestamp_s,
+                              std::size_t frame_index,
+                              const std::vector<float>& point_times_s,
+                              const std::string& path = "");
+
   /// \brief Account for a frame without a usable scan (constant-velocity pose).
   OdometryFrameResult addSkippedScan(std::size_t frame_index,
                                      double timestamp_s,
