@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
@@ -188,6 +189,35 @@ TEST_F(OdometryTool, BadArgumentsExitOneBeforeAnyWork)
   EXPECT_EQ(runOdometry("-h", log_), 0);
   EXPECT_NE(readAll(log_).find("-keyframe-min-frames"), std::string::npos);
   EXPECT_NE(readAll(log_).find("-deskew <auto|on|off>"), std::string::npos) << readAll(log_);
+}
+
+/// The real HDL-32E scan pair through the CLI with its defaults (-sensor auto): within
+/// 5 cm and 0.2 deg of relative.txt, as through the library (the guess used to pick the
+/// 16-beam preset: 4.6 cm, 0.36 deg).
+TEST_F(OdometryTool, RealScanPairWithTheDefaults)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  const fs::path out = dir_ / "out";
+  ASSERT_EQ(runOdometry("-input '" + (data / "scan-pair-pcd").string() + "' -output '" +
+                            out.string() + "'",
+                        log_),
+            0)
+      << readAll(log_);
+  EXPECT_NE(readAll(log_).find("Sensor preset hdl64"), std::string::npos) << readAll(log_);
+  const auto poses = pcl::rast::readTrajectory((out / "poses_kitti.txt").string()).poses;
+  ASSERT_EQ(poses.size(), 2u);
+  std::ifstream in(data / "scan-pair-pcd" / "relative.txt");
+  Eigen::Matrix4d M;
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c)
+      in >> M(r, c);
+  pcl::rast::Pose3d reference(M);
+  const pcl::rast::Pose3d error = reference.inverse() * poses[0].inverse() * poses[1];
+  const double angle_deg = Eigen::AngleAxisd(error.linear()).angle() * 180.0 / M_PI;
+  std::cout << "[ scan-pair-pcd, CLI ] " << 100.0 * error.translation().norm() << " cm, "
+            << angle_deg << " deg\n";
+  EXPECT_LE(error.translation().norm(), 0.05);
+  EXPECT_LE(angle_deg, 0.2);
 }
 
 /// -deskew: auto leaves .bin scans (no time field) as they are; on compensates them

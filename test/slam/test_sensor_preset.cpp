@@ -95,4 +95,19 @@ TEST(SensorPreset, GuessesRealKittiAsHdl64)
             << ", span " << guess.vertical_span_deg << ", tilt " << guess.ground_tilt_deg << ")\n";
 }
 
+/// The real scan pair is an HDL-32E (beams 1.33 deg apart): 32 beams keep the defaults,
+/// which register it within 5 cm and 0.2 deg of the reference (the 16-beam preset: 4.6
+/// cm, 0.36 deg).
+TEST(SensorPreset, GuessesRealHdl32AsDenseEnoughForTheDefaults)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  for (const char* set : {"scan-pair-pcd", "scan-pair-ply"}) {
+    SequenceReader reader((data / set).string());
+    const SensorGuess guess = guessSensorPreset(*reader.read(0).cloud);
+    EXPECT_GT(guess.beam_spacing_deg, 1.2) << set;
+    EXPECT_LT(guess.beam_spacing_deg, 1.5) << set;
+    EXPECT_EQ(guess.preset, SensorPreset::kHdl64) << set << ": " << guess.reason;
+  }
+}
+
 } // namespace
