@@ -6,6 +6,8 @@
 /// camera-0 ground truth (e.g. ../shared/data/kitti-gt-poses/00.txt) and converted to
 /// LiDAR poses with the KITTI axis change, unless `-traj-frame lidar`; a TUM file
 /// (`t x y z qx qy qz qw`) holds body (LiDAR) poses and its timestamps are kept.
+/// `-raw-sweep` writes raw (motion-distorted) sweeps instead of instantaneous scans;
+/// the spin convention is documented in pcl/slam/lidar_simulator.h.
 
 #include "cli.h"
 
@@ -30,6 +32,7 @@ run(int argc, char** argv)
   int threads = params.num_threads;
   double rate_hz = path_params.rate_hz, speed_mps = path_params.speed_mps;
   bool moving_cars = params.world.moving_cars;
+  bool raw_sweep = params.raw_sweep;
 
   ArgParser args(
       "pcl_rast_simulate",
@@ -64,6 +67,11 @@ run(int argc, char** argv)
   args.addDouble(
       "rate", "frame rate in Hz (generated paths, times of KITTI files)", &rate_hz);
   args.addSwitch("moving-cars", "add cars driving along the path", &moving_cars);
+  args.addSwitch("raw-sweep",
+                 "raw (motion-distorted) sweeps: each column from the pose at its "
+                 "firing time, azimuth +180 deg at t - T/2, 0 at t, -180 deg at "
+                 "t + T/2; -format pcd adds a float field time (s since sweep start)",
+                 &raw_sweep);
   args.addInt("threads", "ray-casting threads (output does not depend on it)", &threads);
   if (!args.parse(argc, argv))
     return kExitOk;
@@ -84,6 +92,7 @@ run(int argc, char** argv)
   params.sensor = pcl::rast::sensorModelFromString(sensor);
   params.seed = static_cast<std::uint64_t>(seed);
   params.world.moving_cars = moving_cars;
+  params.raw_sweep = raw_sweep;
   params.num_threads = threads;
   params.frame_period_s = 1.0 / rate_hz;
   std::string why;

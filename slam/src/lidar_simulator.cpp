@@ -29,6 +29,16 @@ deg(double d)
 
 using simulator_detail::splitmix64;
 
+/// A raw sweep's point as the Velodyne driver writes it: x y z intensity plus `time`,
+/// seconds since the sweep start. Registered here only (PCD output of writeSequence).
+struct EIGEN_ALIGN16 PointXYZIT
+{
+  PCL_ADD_POINT4D;
+  float intensity;
+  float time;
+  PCL_MAKE_ALIGNED_OPERATOR_NEW
+};
+
 /// Counter-based random numbers: the noise of ray k of frame i is a hash of
 /// (seed, i, k) and depends on nothing else. Each 64-bit hash gives two uniforms.
 std::uint64_t
@@ -118,7 +128,44 @@ struct Polyline
   }
 };
 
+/// Firing-time offset of column \a column of \a steps (azimuth 2 pi column / steps)
+/// from the frame's timestamp: tau(a) = -a / (2 pi) * period with a wrapped into
+/// (-pi, pi], i.e. the column index wrapped into (-steps / 2, steps / 2].
+double
+columnTimeOffset(int column, int steps, double period_s)
+{
+  const int wrapped = 2 * column <= steps ? column : column - steps;
+  return -period_s * static_cast<double>(wrapped) / static_cast<double>(steps);
+}
+
+/// The pose a fraction \a s of the way from \a T_a to \a T_b: slerp of the rotation
+/// (R_a exp(s log(R_a^T R_b))), lerp of the translation; s outside [0, 1]
+/// extrapolates with the same motion. Exact at s = 0 and s = 1.
+Pose3d
+interpolatePose(const Pose3d& T_a, const Pose3d& T_b, double s)
+{
+  if (s == 0.0)
+    return T_a;
+  if (s == 1.0)
+    return T_b;
+  const Eigen::AngleAxisd R_ab(Eigen::Matrix3d(T_a.linear().transpose() * T_b.linear()));
+  Pose3d T = Pose3d::Identity();
+  T.linear() =
+      T_a.linear() * Eigen::AngleAxisd(s * R_ab.angle(), R_ab.axis()).toRotationMatrix();
+  T.translation() = T_a.translation() + s * (T_b.translation() - T_a.translation());
+  return T;
+}
+
 } // namespace
+} // namespace rast
+} // namespace pcl
+
+POINT_CLOUD_REGISTER_POINT_STRUCT(pcl::rast::PointXYZIT,
+                                  (float, x, x)(float, y, y)(float, z, z)(
+                                      float, intensity, intensity)(float, time, time))
+
+namespace pcl {
+namespace rast {
 
 // ---- names ----
 
@@ -395,6 +442,15 @@ LidarSimulator::LidarSimulator(const LidarSimulatorParams& params,
     spec_.range_noise_std_m = params.range_noise_std_m;
   if (params.dropout_rate >= 0.0)
     spec_.dropout_rate = params.dropout_rate;
+  if (params.raw_sweep) // a sweep lasts until the next frame: times must increase
+    for (std::size_t k = 0; k < timestamps_s.size(); ++k)
+      if (!std::isfinite(timestamps_s[k]) ||
+          (k > 0 && !(timestamps_s[k] > timestamps_s[k - 1])))
+        throw std::invalid_argument(
+            "LidarSimulator: raw_sweep needs finite, increasing timestamps, got "
+            "timestamps_s[" +
+            std::to_string(k) + "] = " + std::to_string(timestamps_s[k]) +
+            (k > 0 ? " after " + std::to_string(timestamps_s[k - 1]) : std::string()));
 
   const int beams = static_cast<int>(spec_.beam_elevations_rad.size());
   ray_dirs_sensor_.reserve(spec_.raysPerFrame());
@@ -426,8 +482,50 @@ LidarSimulator::sensorPose(std::size_t i) const
   return T_world_body_.at(i) * bodyToSensor(spec_, timestamp(i));
 }
 
+double
+LidarSimulator::framePeriod(std::size_t i) const
+{
+  if (i >= numFrames())
+    throw std::out_of_range("LidarSimulator::framePeriod: frame " + std::to_string(i) +
+                            " of " + std::to_string(numFrames()));
+  if (numFrames() == 1)
+    return params_.frame_period_s;
+  const std::size_t k = i + 1 < numFrames() ? i : i - 1;
+  const double period = timestamp(k + 1) - timestamp(k);
+  if (!(period > 0.0))
+    throw std::invalid_argument("LidarSimulator::framePeriod: timestamps do not increase "
+                                "at frame " +
+                                std::to_string(i) + ": " + std::to_string(timestamp(k)) +
+                                " then " + std::to_string(timestamp(k + 1)));
+  return period;
+}
+
+Pose3d
+LidarSimulator::sensorPoseAt(double time_s) const
+{
+  if (!std::isfinite(time_s))
+    throw std::invalid_argument("LidarSimulator::sensorPoseAt: time " +
+                                std::to_string(time_s) + " is not finite");
+  const std::size_t n = numFrames();
+  if (n == 1)
+    return T_world_body_[0] * bodyToSensor(spec_, time_s);
+  // Segment [k, k + 1] with timestamp(k) <= time_s < timestamp(k + 1), clamped to the
+  // first / last segment (extrapolation).
+  std::size_t lo = 0, hi = n - 1;
+  while (hi - lo > 1) {
+    const std::size_t mid = (lo + hi) / 2;
+    (timestamp(mid) <= time_s ? lo : hi) = mid;
+  }
+  const double t0 = timestamp(lo), t1 = timestamp(lo + 1);
+  const double s = t1 > t0 ? (time_s - t0) / (t1 - t0) : 0.0;
+  return interpolatePose(T_world_body_[lo], T_world_body_[lo + 1], s) *
+         bodyToSensor(spec_, time_s);
+}
+
 void
-LidarSimulator::simulateFrame(std::size_t i, pcl::PointCloud<pcl::PointXYZI>& cloud) const
+LidarSimulator::simulateFrame(std::size_t i,
+                              pcl::PointCloud<pcl::PointXYZI>& cloud,
+                              std::vector<float>* point_times_s) const
 {
   if (i >= numFrames())
     throw std::out_of_range("LidarSimulator::simulateFrame: frame " + std::to_string(i) +
@@ -437,28 +535,57 @@ LidarSimulator::simulateFrame(std::size_t i, pcl::PointCloud<pcl::PointXYZI>& cl
   const Eigen::Matrix3d R = T_world_sensor.linear();
   const Eigen::Vector3d origin = T_world_sensor.translation();
   const std::size_t n = ray_dirs_sensor_.size();
+  const std::size_t beams = spec_.beam_elevations_rad.size();
+  const int steps = spec_.azimuth_steps;
+  const bool raw = params_.raw_sweep;
 
-  // 1. Cast all rays, split into contiguous chunks (threads only change speed).
+  // 0. Firing-time offset of each column (spin convention in the header) and, for a
+  // raw sweep, the sensor pose at that time: once per column, not per ray.
+  std::vector<double> column_tau_s;
+  PoseVector T_world_column;
+  if (raw || point_times_s) {
+    const double period_s = framePeriod(i);
+    column_tau_s.resize(static_cast<std::size_t>(steps));
+    for (int a = 0; a < steps; ++a)
+      column_tau_s[a] = columnTimeOffset(a, steps, period_s);
+  }
+  if (raw) {
+    T_world_column.reserve(static_cast<std::size_t>(steps));
+    for (int a = 0; a < steps; ++a)
+      T_world_column.push_back(sensorPoseAt(time_s + column_tau_s[a]));
+  }
+
+  // 1. Cast rays [lo, hi) into hits (from the frame's pose, or from each column's
+  // pose for a raw sweep; moving cars at the frame's time either way), split into
+  // contiguous chunks (threads only change speed).
   std::vector<RayHit> hits(n);
-  const std::size_t chunks = static_cast<std::size_t>(params_.num_threads);
-  auto castChunk = [&](std::size_t c) {
-    const std::size_t lo = n * c / chunks, hi = n * (c + 1) / chunks;
+  auto castRange = [&](std::size_t lo, std::size_t hi) {
     std::vector<Eigen::Vector3d> dirs(hi - lo);
-    for (std::size_t k = lo; k < hi; ++k)
-      dirs[k - lo] = R * ray_dirs_sensor_[k];
     std::vector<RayHit> part;
-    world_->castRays(origin, dirs, spec_.max_range_m, time_s, part);
-    std::copy(part.begin(), part.end(), hits.begin() + lo);
+    std::vector<RayHit>& out = lo == 0 && hi == n ? hits : part;
+    if (!raw) {
+      for (std::size_t k = lo; k < hi; ++k)
+        dirs[k - lo] = R * ray_dirs_sensor_[k];
+      world_->castRays(origin, dirs, spec_.max_range_m, time_s, out);
+    } else {
+      std::vector<Eigen::Vector3d> origins(hi - lo);
+      for (std::size_t k = lo; k < hi; ++k) {
+        const Pose3d& T = T_world_column[k / beams];
+        dirs[k - lo] = T.linear() * ray_dirs_sensor_[k];
+        origins[k - lo] = T.translation();
+      }
+      world_->castRays(origins, dirs, spec_.max_range_m, time_s, out);
+    }
+    if (&out != &hits)
+      std::copy(part.begin(), part.end(), hits.begin() + lo);
   };
+  const std::size_t chunks = static_cast<std::size_t>(params_.num_threads);
   if (chunks == 1) {
-    std::vector<Eigen::Vector3d> dirs(n);
-    for (std::size_t k = 0; k < n; ++k)
-      dirs[k] = R * ray_dirs_sensor_[k];
-    world_->castRays(origin, dirs, spec_.max_range_m, time_s, hits);
+    castRange(0, n);
   } else {
     std::vector<std::thread> pool;
     for (std::size_t c = 0; c < chunks; ++c)
-      pool.emplace_back(castChunk, c);
+      pool.emplace_back(castRange, n * c / chunks, n * (c + 1) / chunks);
     for (auto& t : pool)
       t.join();
   }
@@ -468,6 +595,10 @@ LidarSimulator::simulateFrame(std::size_t i, pcl::PointCloud<pcl::PointXYZI>& cl
   // material's reflectivity, the incidence angle and the range.
   cloud.clear();
   cloud.reserve(n);
+  if (point_times_s) {
+    point_times_s->clear();
+    point_times_s->reserve(n);
+  }
   const double max_r = spec_.max_range_m;
   const std::uint64_t frame_key = frameKey(params_.seed, i);
   for (std::size_t k = 0; k < n; ++k) {
@@ -495,6 +626,8 @@ LidarSimulator::simulateFrame(std::size_t i, pcl::PointCloud<pcl::PointXYZI>& cl
     pt.z = static_cast<float>(p.z());
     pt.intensity = static_cast<float>(std::clamp(intensity, 0.0, 1.0));
     cloud.push_back(pt);
+    if (point_times_s)
+      point_times_s->push_back(static_cast<float>(column_tau_s[k / beams]));
   }
   cloud.width = static_cast<std::uint32_t>(cloud.size());
   cloud.height = 1;
@@ -525,22 +658,43 @@ LidarSimulator::writeSequence(const std::string& dir,
 
   const std::size_t total = (last - first) / every + 1;
   const Pose3d T_sensor0_world = sensorPose(first).inverse();
+  // A raw sweep's PCD carries each point's time since the sweep start.
+  const bool with_time = params_.raw_sweep && format == ScanFormat::kPcd;
   PoseVector poses;
   std::ostringstream times;
   pcl::PointCloud<pcl::PointXYZI> cloud;
+  std::vector<float> point_times_s;
+  pcl::PointCloud<PointXYZIT> timed;
   for (std::size_t k = 0; k < total; ++k) {
     const std::size_t i = first + k * every;
-    simulateFrame(i, cloud);
+    simulateFrame(i, cloud, with_time ? &point_times_s : nullptr);
     char name[32];
     std::snprintf(
         name, sizeof(name), "%06zu.%s", k, format == ScanFormat::kBin ? "bin" : "pcd");
     const std::string path = (scan_dir / name).string();
+    int status = 0;
     if (format == ScanFormat::kBin) {
       writeKittiBin(path, cloud);
-    } else if (pcl::io::savePCDFileBinary(path, cloud) < 0) {
+    } else if (with_time) {
+      const double half_period_s = 0.5 * framePeriod(i);
+      timed.resize(cloud.size());
+      for (std::size_t p = 0; p < cloud.size(); ++p) {
+        timed[p].getVector4fMap() = cloud[p].getVector4fMap();
+        timed[p].intensity = cloud[p].intensity;
+        // tau + period / 2, clamped: -period / 2 rounded to float may end below 0.
+        timed[p].time = static_cast<float>(
+            std::clamp(point_times_s[p] + half_period_s, 0.0, 2.0 * half_period_s));
+      }
+      timed.width = static_cast<std::uint32_t>(timed.size());
+      timed.height = 1;
+      timed.is_dense = true;
+      status = pcl::io::savePCDFileBinary(path, timed);
+    } else {
+      status = pcl::io::savePCDFileBinary(path, cloud);
+    }
+    if (status < 0)
       throw std::runtime_error("LidarSimulator::writeSequence: cannot write '" + path +
                                "'");
-    }
     poses.push_back(k == 0 ? Pose3d::Identity()
                            : Pose3d(T_sensor0_world * sensorPose(i)));
     char line[64];

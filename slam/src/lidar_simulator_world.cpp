@@ -303,6 +303,16 @@ struct SimulatedWorld::Impl
                  double& cos_inc) const;
   /// Moving-car boxes at time t.
   std::vector<Primitive> movingCarBoxes(double time_s) const;
+  /// Both castRays: ray r starts at origins[r] (kOwnOrigins) or all at origins[0].
+  /// Each run of consecutive rays with the same origin shares the ground below it and
+  /// the moving cars near it. A template so that one origin per frame costs what it
+  /// did before rays had their own.
+  template <bool kOwnOrigins>
+  void castRays(const Eigen::Vector3d* origins,
+                const std::vector<Eigen::Vector3d>& dirs,
+                double max_range_m,
+                double time_s,
+                std::vector<RayHit>& hits) const;
 
   // -- helpers for placement --
   bool clearOfCorridor(const Primitive& p, double margin) const;
@@ -921,140 +931,175 @@ SimulatedWorld::castRay(const Eigen::Vector3d& origin,
 }
 
 void
-SimulatedWorld::castRays(const Eigen::Vector3d& o,
+SimulatedWorld::castRays(const Eigen::Vector3d& origin,
                          const std::vector<Eigen::Vector3d>& dirs,
                          double max_range_m,
                          double time_s,
                          std::vector<RayHit>& hits) const
 {
-  const Impl& w = *impl_;
+  impl_->castRays<false>(&origin, dirs, max_range_m, time_s, hits);
+}
+
+void
+SimulatedWorld::castRays(const std::vector<Eigen::Vector3d>& origins,
+                         const std::vector<Eigen::Vector3d>& dirs,
+                         double max_range_m,
+                         double time_s,
+                         std::vector<RayHit>& hits) const
+{
+  if (origins.size() != dirs.size())
+    throw std::invalid_argument(
+        "SimulatedWorld::castRays: " + std::to_string(origins.size()) + " origins for " +
+        std::to_string(dirs.size()) + " directions");
+  impl_->castRays<true>(origins.data(), dirs, max_range_m, time_s, hits);
+}
+
+template <bool kOwnOrigins>
+void
+SimulatedWorld::Impl::castRays(const Eigen::Vector3d* origins,
+                               const std::vector<Eigen::Vector3d>& dirs,
+                               double max_range_m,
+                               double time_s,
+                               std::vector<RayHit>& hits) const
+{
+  const Impl& w = *this;
   const Grid2& g = w.ray_grid;
   hits.assign(dirs.size(), RayHit());
   std::vector<std::uint32_t> mailbox(w.prims.size(),
                                      std::numeric_limits<std::uint32_t>::max());
 
-  // Moving cars: only those that can be in range, tested via an enclosing sphere.
-  std::vector<Primitive> movers = w.movingCarBoxes(time_s);
+  const std::vector<Primitive> movers = w.movingCarBoxes(time_s);
   std::vector<Primitive> near_movers;
-  for (const auto& b : movers)
-    if (std::hypot(b.cx - o.x(), b.cy - o.y()) < max_range_m + 5.0)
-      near_movers.push_back(b);
 
   const double gx_min = g.x0, gy_min = g.y0;
   const double gx_max = g.x0 + g.nx * g.cell, gy_max = g.y0 + g.ny * g.cell;
 
-  double gx0, gy0;
-  const double h0 = w.groundAt(o.x(), o.y(), &gx0, &gy0);
+  // Runs of rays with the same origin share its set-up.
+  for (std::size_t r0 = 0; r0 < dirs.size();) {
+    const Eigen::Vector3d o = origins[kOwnOrigins ? r0 : 0];
+    std::size_t r1 = kOwnOrigins ? r0 + 1 : dirs.size();
+    while (kOwnOrigins && r1 < dirs.size() && origins[r1] == o)
+      ++r1;
 
-  for (std::size_t r = 0; r < dirs.size(); ++r) {
-    const Eigen::Vector3d& d = dirs[r];
-    RayHit& out = hits[r];
-    double best = max_range_m, best_cos = 1.0;
-    float best_refl = 0.0f;
-    bool found = false, is_ground = false;
+    // Moving cars: only those that can be in range, tested via an enclosing sphere.
+    near_movers.clear();
+    for (const auto& b : movers)
+      if (std::hypot(b.cx - o.x(), b.cy - o.y()) < max_range_m + 5.0)
+        near_movers.push_back(b);
+    double gx0, gy0;
+    const double h0 = w.groundAt(o.x(), o.y(), &gx0, &gy0);
 
-    double t_ground, cos_ground;
-    if (w.groundHit(o, d, max_range_m, h0, gx0, gy0, t_ground, cos_ground)) {
-      best = t_ground;
-      best_cos = cos_ground;
-      const Eigen::Vector3d p = o + t_ground * d;
-      best_refl =
-          w.distanceAt(p.x(), p.y()) < w.params.corridor_half_width_m ? 0.12f : 0.28f;
-      found = is_ground = true;
-    }
+    for (std::size_t r = r0; r < r1; ++r) {
+      const Eigen::Vector3d& d = dirs[r];
+      RayHit& out = hits[r];
+      double best = max_range_m, best_cos = 1.0;
+      float best_refl = 0.0f;
+      bool found = false, is_ground = false;
 
-    for (const auto& b : near_movers) {
-      const double ox = b.cx - o.x(), oy = b.cy - o.y(), oz = b.cz - o.z();
-      const double tca = ox * d.x() + oy * d.y() + oz * d.z();
-      const double rad2 = b.hx * b.hx + b.hy * b.hy + b.hz * b.hz;
-      if (ox * ox + oy * oy + oz * oz - tca * tca > rad2)
-        continue;
-      double t, c;
-      if (intersect(b, o, d, 1e-6, best, t, c)) {
-        best = t;
-        best_cos = c;
-        best_refl = b.reflectivity;
-        found = true;
-        is_ground = false;
+      double t_ground, cos_ground;
+      if (w.groundHit(o, d, max_range_m, h0, gx0, gy0, t_ground, cos_ground)) {
+        best = t_ground;
+        best_cos = cos_ground;
+        const Eigen::Vector3d p = o + t_ground * d;
+        best_refl =
+            w.distanceAt(p.x(), p.y()) < w.params.corridor_half_width_m ? 0.12f : 0.28f;
+        found = is_ground = true;
       }
-    }
 
-    // 2D DDA (Amanatides & Woo) over the cells the ray's footprint crosses, up to
-    // the nearest hit so far.
-    double t_enter = 0.0, t_exit = best;
-    const double dx = d.x(), dy = d.y();
-    auto clip = [&](double o_k, double d_k, double lo, double hi) {
-      if (std::abs(d_k) < 1e-12)
-        return o_k >= lo && o_k < hi;
-      double ta = (lo - o_k) / d_k, tb = (hi - o_k) / d_k;
-      if (ta > tb)
-        std::swap(ta, tb);
-      t_enter = std::max(t_enter, ta);
-      t_exit = std::min(t_exit, tb);
-      return true;
-    };
-    if (!w.prims.empty() && clip(o.x(), dx, gx_min, gx_max) &&
-        clip(o.y(), dy, gy_min, gy_max) && t_enter < t_exit) {
-      const double px = o.x() + t_enter * dx, py = o.y() + t_enter * dy;
-      int i = g.ix(px), j = g.iy(py);
-      const int step_i = dx > 0 ? 1 : -1, step_j = dy > 0 ? 1 : -1;
-      const double inv_dx = std::abs(dx) > 1e-12 ? 1.0 / dx : kInf;
-      const double inv_dy = std::abs(dy) > 1e-12 ? 1.0 / dy : kInf;
-      double t_max_x = std::abs(dx) > 1e-12
-                           ? (g.x0 + (i + (dx > 0 ? 1 : 0)) * g.cell - o.x()) * inv_dx
-                           : kInf;
-      double t_max_y = std::abs(dy) > 1e-12
-                           ? (g.y0 + (j + (dy > 0 ? 1 : 0)) * g.cell - o.y()) * inv_dy
-                           : kInf;
-      const double t_delta_x = std::abs(g.cell * inv_dx),
-                   t_delta_y = std::abs(g.cell * inv_dy);
-      double t_cell = t_enter;
-      const std::uint32_t ray_id = static_cast<std::uint32_t>(r);
-      while (t_cell < best) {
-        const double t_next = std::min(t_max_x, t_max_y);
-        const std::size_t c = g.index(i, j);
-        const double z_low =
-            o.z() + std::min(t_cell * d.z(), std::min(t_next, best) * d.z());
-        if (z_low <= w.cell_top[c]) {
-          for (std::uint32_t k = w.cell_start[c]; k < w.cell_start[c + 1]; ++k) {
-            const std::uint32_t id = w.cell_items[k];
-            if (mailbox[id] == ray_id)
-              continue;
-            mailbox[id] = ray_id;
-            double t, cos_inc;
-            if (intersect(w.prims[id], o, d, 1e-6, best, t, cos_inc)) {
-              best = t;
-              best_cos = cos_inc;
-              best_refl = w.prims[id].reflectivity;
-              found = true;
-              is_ground = false;
+      for (const auto& b : near_movers) {
+        const double ox = b.cx - o.x(), oy = b.cy - o.y(), oz = b.cz - o.z();
+        const double tca = ox * d.x() + oy * d.y() + oz * d.z();
+        const double rad2 = b.hx * b.hx + b.hy * b.hy + b.hz * b.hz;
+        if (ox * ox + oy * oy + oz * oz - tca * tca > rad2)
+          continue;
+        double t, c;
+        if (intersect(b, o, d, 1e-6, best, t, c)) {
+          best = t;
+          best_cos = c;
+          best_refl = b.reflectivity;
+          found = true;
+          is_ground = false;
+        }
+      }
+
+      // 2D DDA (Amanatides & Woo) over the cells the ray's footprint crosses, up to
+      // the nearest hit so far.
+      double t_enter = 0.0, t_exit = best;
+      const double dx = d.x(), dy = d.y();
+      auto clip = [&](double o_k, double d_k, double lo, double hi) {
+        if (std::abs(d_k) < 1e-12)
+          return o_k >= lo && o_k < hi;
+        double ta = (lo - o_k) / d_k, tb = (hi - o_k) / d_k;
+        if (ta > tb)
+          std::swap(ta, tb);
+        t_enter = std::max(t_enter, ta);
+        t_exit = std::min(t_exit, tb);
+        return true;
+      };
+      if (!w.prims.empty() && clip(o.x(), dx, gx_min, gx_max) &&
+          clip(o.y(), dy, gy_min, gy_max) && t_enter < t_exit) {
+        const double px = o.x() + t_enter * dx, py = o.y() + t_enter * dy;
+        int i = g.ix(px), j = g.iy(py);
+        const int step_i = dx > 0 ? 1 : -1, step_j = dy > 0 ? 1 : -1;
+        const double inv_dx = std::abs(dx) > 1e-12 ? 1.0 / dx : kInf;
+        const double inv_dy = std::abs(dy) > 1e-12 ? 1.0 / dy : kInf;
+        double t_max_x = std::abs(dx) > 1e-12
+                             ? (g.x0 + (i + (dx > 0 ? 1 : 0)) * g.cell - o.x()) * inv_dx
+                             : kInf;
+        double t_max_y = std::abs(dy) > 1e-12
+                             ? (g.y0 + (j + (dy > 0 ? 1 : 0)) * g.cell - o.y()) * inv_dy
+                             : kInf;
+        const double t_delta_x = std::abs(g.cell * inv_dx),
+                     t_delta_y = std::abs(g.cell * inv_dy);
+        double t_cell = t_enter;
+        const std::uint32_t ray_id = static_cast<std::uint32_t>(r);
+        while (t_cell < best) {
+          const double t_next = std::min(t_max_x, t_max_y);
+          const std::size_t c = g.index(i, j);
+          const double z_low =
+              o.z() + std::min(t_cell * d.z(), std::min(t_next, best) * d.z());
+          if (z_low <= w.cell_top[c]) {
+            for (std::uint32_t k = w.cell_start[c]; k < w.cell_start[c + 1]; ++k) {
+              const std::uint32_t id = w.cell_items[k];
+              if (mailbox[id] == ray_id)
+                continue;
+              mailbox[id] = ray_id;
+              double t, cos_inc;
+              if (intersect(w.prims[id], o, d, 1e-6, best, t, cos_inc)) {
+                best = t;
+                best_cos = cos_inc;
+                best_refl = w.prims[id].reflectivity;
+                found = true;
+                is_ground = false;
+              }
             }
+          } else if (d.z() > 0 && z_low > w.max_top) {
+            break; // above everything, climbing
           }
-        } else if (d.z() > 0 && z_low > w.max_top) {
-          break; // above everything, climbing
-        }
-        if (t_next >= best)
-          break;
-        t_cell = t_next;
-        if (t_max_x < t_max_y) {
-          i += step_i;
-          t_max_x += t_delta_x;
-          if (i < 0 || i >= g.nx)
+          if (t_next >= best)
             break;
-        } else {
-          j += step_j;
-          t_max_y += t_delta_y;
-          if (j < 0 || j >= g.ny)
-            break;
+          t_cell = t_next;
+          if (t_max_x < t_max_y) {
+            i += step_i;
+            t_max_x += t_delta_x;
+            if (i < 0 || i >= g.nx)
+              break;
+          } else {
+            j += step_j;
+            t_max_y += t_delta_y;
+            if (j < 0 || j >= g.ny)
+              break;
+          }
         }
       }
+      if (found) {
+        out.range_m = best;
+        out.cos_incidence = best_cos;
+        out.reflectivity = best_refl;
+        out.is_ground = is_ground;
+      }
     }
-    if (found) {
-      out.range_m = best;
-      out.cos_incidence = best_cos;
-      out.reflectivity = best_refl;
-      out.is_ground = is_ground;
-    }
+    r0 = r1;
   }
 }
 

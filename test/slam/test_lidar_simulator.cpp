@@ -1,13 +1,17 @@
 /// \file test_lidar_simulator.cpp
 /// \brief Tests of the LiDAR sequence simulator: parameters, generated paths,
 /// determinism, frame independence, sensor plausibility, a clear road corridor,
-/// world consistency between frames, sequence files and KITTI-driven simulation.
+/// world consistency between frames, sequence files and KITTI-driven simulation, and
+/// raw sweeps (firing times, smear along the motion, the PCD `time` field).
 
 #include "test_data.h"
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <fstream>
+#include <pcl/PCLPointCloud2.h>
+#include <pcl/io/pcd_io.h>
 #include <pcl/kdtree/kdtree_flann.h>
 #include <pcl/slam/lidar_simulator.h>
 #include <pcl/slam/pose_io.h>
@@ -363,6 +367,43 @@ TEST(LidarSimulator, WorldDeterministicAndVaried)
     ADD_FAILURE() << "object in the corridor at " << hit.range_m << " m";
 }
 
+TEST(LidarSimulator, CastRaysWithTheirOwnOrigins)
+{
+  // Rays from origins far apart (raw sweeps give each column its own origin) hit what
+  // each would hit alone: ground, static objects and moving cars near its own origin.
+  const PoseVector path = makePath(PathType::kLoop, 300);
+  pcl::rast::WorldParams params;
+  params.moving_cars = true;
+  params.num_moving_cars = 40;
+  pcl::rast::SimulatedWorld world(params, path, 1.73, 5);
+  std::vector<Eigen::Vector3d> origins, dirs;
+  for (std::size_t i : {std::size_t(0), std::size_t(90), std::size_t(180)})
+    for (int a = 0; a < 360; a += 2)
+      for (double el : {-0.3, -0.1, 0.0, 0.05}) {
+        origins.push_back(path[i].translation());
+        dirs.emplace_back(std::cos(el) * std::cos(a * M_PI / 180),
+                          std::cos(el) * std::sin(a * M_PI / 180),
+                          std::sin(el));
+      }
+  const double time_s = 12.3;
+  std::vector<pcl::rast::RayHit> hits;
+  world.castRays(origins, dirs, 40.0, time_s, hits);
+  ASSERT_EQ(hits.size(), dirs.size());
+  std::size_t hit_count = 0;
+  for (std::size_t k = 0; k < dirs.size(); ++k) {
+    pcl::rast::RayHit alone;
+    const bool hit = world.castRay(origins[k], dirs[k], 40.0, time_s, alone);
+    ASSERT_EQ(hits[k].range_m > 0.0, hit) << k;
+    ASSERT_EQ(hits[k].range_m, alone.range_m) << k;
+    ASSERT_EQ(hits[k].reflectivity, alone.reflectivity) << k;
+    ASSERT_EQ(hits[k].is_ground, alone.is_ground) << k;
+    hit_count += hit;
+  }
+  EXPECT_GT(hit_count, dirs.size() / 2);
+  origins.pop_back();
+  EXPECT_THROW(world.castRays(origins, dirs, 40.0, time_s, hits), std::invalid_argument);
+}
+
 TEST(LidarSimulator, RoadCorridorClearOnEveryPass)
 {
   // Loop and figure eight (driven past the start, crossing itself): no non-ground
@@ -489,6 +530,320 @@ TEST(LidarSimulator, WriteSequence)
                std::invalid_argument);
   EXPECT_THROW(sim.writeSequence(dir.string(), pcl::rast::ScanFormat::kBin, 0, 12),
                std::invalid_argument);
+}
+
+// ---- raw sweeps ----
+
+/// tau(a) = -a / (2 pi) * period: the spin convention of lidar_simulator.h.
+double
+expectedTau(const pcl::PointXYZI& p, double period_s)
+{
+  return -std::atan2(p.y, p.x) / (2 * M_PI) * period_s;
+}
+
+TEST(LidarSimulator, RawSweepOffIsUnchanged)
+{
+  // The instantaneous scan of this frame as it was before raw sweeps existed (count and
+  // coordinate sums; any moved point or changed dropout shows), and the same with
+  // raw_sweep explicitly false, with or without the firing times.
+  const PoseVector path = makePath(PathType::kStraight, 10);
+  LidarSimulator defaults(makeParams(SensorModel::kHdl64, 7), path);
+  LidarSimulatorParams off = makeParams(SensorModel::kHdl64, 7);
+  off.raw_sweep = false;
+  LidarSimulator explicit_off(off, path);
+  Cloud a, b, c;
+  std::vector<float> times;
+  defaults.simulateFrame(4, a);
+  explicit_off.simulateFrame(4, b);
+  explicit_off.simulateFrame(4, c, &times);
+  EXPECT_TRUE(sameCloud(a, b));
+  EXPECT_TRUE(sameCloud(a, c));
+  EXPECT_EQ(times.size(), c.size());
+
+  double sx = 0, sy = 0, sz = 0, si = 0;
+  for (const auto& p : a) {
+    sx += p.x;
+    sy += p.y;
+    sz += p.z;
+    si += p.intensity;
+  }
+  EXPECT_EQ(a.size(), 125361u);
+  EXPECT_NEAR(sx, 103585.14677, 1e-4);
+  EXPECT_NEAR(sy, -129776.01174, 1e-4);
+  EXPECT_NEAR(sz, -157374.75515, 1e-4);
+  EXPECT_NEAR(si, 25667.62971, 1e-4);
+
+  // A raw sweep of the same frame is a different cloud.
+  LidarSimulatorParams on = makeParams(SensorModel::kHdl64, 7);
+  on.raw_sweep = true;
+  LidarSimulator raw(on, path);
+  Cloud r;
+  raw.simulateFrame(4, r);
+  EXPECT_FALSE(sameCloud(a, r));
+}
+
+TEST(LidarSimulator, RawSweepSmearsAlongTheMotion)
+{
+  // 10 m/s, 10 Hz along +x: the sensor is 0.5 m behind its frame pose when the sweep
+  // starts (azimuth +180 deg) and 0.5 m ahead of it when the sweep ends (-180 deg).
+  const PoseVector path = makePath(PathType::kStraight, 10);
+  LidarSimulatorParams p = makeParams(SensorModel::kHdl64, 7);
+  LidarSimulator inst(p, path);
+  p.raw_sweep = true;
+  LidarSimulator raw(p, path);
+  const std::size_t i = 4;
+  const double period = raw.framePeriod(i);
+  ASSERT_NEAR(period, 0.1, 1e-12);
+  Cloud c_inst, c_raw;
+  std::vector<float> t_inst, t_raw;
+  inst.simulateFrame(i, c_inst, &t_inst);
+  raw.simulateFrame(i, c_raw, &t_raw);
+  ASSERT_EQ(t_raw.size(), c_raw.size());
+  p.num_threads = 3; // threads split columns between them: same sweep
+  LidarSimulator raw_threaded(p, path);
+  Cloud c_threaded;
+  raw_threaded.simulateFrame(i, c_threaded);
+  EXPECT_TRUE(sameCloud(c_raw, c_threaded));
+
+  // The forward column fires at the frame's timestamp: the same points as the
+  // instantaneous scan.
+  Cloud fwd_inst, fwd_raw;
+  for (std::size_t k = 0; k < c_inst.size(); ++k)
+    if (t_inst[k] == 0.0f)
+      fwd_inst.push_back(c_inst[k]);
+  for (std::size_t k = 0; k < c_raw.size(); ++k)
+    if (t_raw[k] == 0.0f)
+      fwd_raw.push_back(c_raw[k]);
+  ASSERT_GE(fwd_inst.size(), 30u);
+  ASSERT_EQ(fwd_raw.size(), fwd_inst.size());
+  for (std::size_t k = 0; k < fwd_raw.size(); ++k) {
+    EXPECT_NEAR(fwd_raw[k].x, fwd_inst[k].x, 1e-6);
+    EXPECT_NEAR(fwd_raw[k].y, fwd_inst[k].y, 1e-6);
+    EXPECT_NEAR(fwd_raw[k].z, fwd_inst[k].z, 1e-6);
+  }
+
+  // Behind the sensor (175 deg < |azimuth| < 179.95 deg: exactly behind, +180 and
+  // -180 deg are the same direction). Where the sensor was when the point fired, from
+  // the convention and the path itself: lerp between the neighbouring poses.
+  const pcl::rast::Pose3d T_frame = raw.sensorPose(i);
+  const Eigen::Vector3d step_before = path[i].translation() - path[i - 1].translation();
+  const Eigen::Vector3d step_after = path[i + 1].translation() - path[i].translation();
+  Eigen::Vector3d sum_start = Eigen::Vector3d::Zero(), sum_end = Eigen::Vector3d::Zero();
+  std::size_t n_start = 0, n_end = 0, from_firing_pose = 0, from_frame_pose = 0;
+  for (std::size_t k = 0; k < c_raw.size(); ++k) {
+    const Eigen::Vector3d q = c_raw[k].getVector3fMap().cast<double>();
+    const double az = std::atan2(q.y(), q.x());
+    if (std::abs(az) < 175.0 * M_PI / 180.0 || std::abs(az) > 179.95 * M_PI / 180.0)
+      continue;
+    const double tau = expectedTau(c_raw[k], period); // < 0: azimuth > 0, sweep start
+    const Eigen::Vector3d origin =
+        path[i].translation() + tau / period * (tau < 0 ? step_before : step_after);
+    const pcl::rast::Pose3d T_fire = raw.sensorPoseAt(raw.timestamp(i) + tau);
+    ASSERT_LT((T_fire.translation() - origin).norm(), 1e-9);
+
+    // The point is the return of its ray cast from the firing pose (range noise
+    // < 3.5 sigma = 0.07 m), often not the one from the frame's pose.
+    const Eigen::Vector3d dir = T_fire.linear() * q.normalized();
+    pcl::rast::RayHit hit;
+    ASSERT_TRUE(raw.world().castRay(origin, dir, 125.0, raw.timestamp(i), hit));
+    from_firing_pose += std::abs(hit.range_m - q.norm()) < 0.08;
+    const bool hit_frame =
+        raw.world().castRay(T_frame.translation(), dir, 125.0, raw.timestamp(i), hit);
+    from_frame_pose += hit_frame && std::abs(hit.range_m - q.norm()) < 0.08;
+
+    // Displacement of the uncompensated point from where it really is, both in the
+    // sensor frame at the frame's timestamp.
+    const Eigen::Vector3d truth = T_frame.inverse() * (T_fire * q);
+    (tau < 0 ? sum_start : sum_end) += q - truth;
+    ++(tau < 0 ? n_start : n_end);
+  }
+  ASSERT_GT(n_start, 1000u);
+  ASSERT_GT(n_end, 1000u);
+  EXPECT_EQ(from_firing_pose, n_start + n_end);
+  EXPECT_LT(from_frame_pose, (n_start + n_end) * 6 / 10);
+  const Eigen::Vector3d mean_start = sum_start / n_start, mean_end = sum_end / n_end;
+  // speed * period / 2 = 0.5 m, along +x at the start and -x at the end.
+  EXPECT_NEAR(mean_start.x(), 0.5, 0.03);
+  EXPECT_NEAR(mean_end.x(), -0.5, 0.03);
+  EXPECT_LT(mean_start.tail<2>().norm(), 0.03);
+  EXPECT_LT(mean_end.tail<2>().norm(), 0.03);
+
+  // The instantaneous scan has no such seam: there the same construction gives 0.
+  std::size_t n_inst = 0;
+  for (std::size_t k = 0; k < c_inst.size(); ++k) {
+    const Eigen::Vector3d q = c_inst[k].getVector3fMap().cast<double>();
+    if (std::abs(std::atan2(q.y(), q.x())) < 175.0 * M_PI / 180.0)
+      continue;
+    pcl::rast::RayHit hit;
+    ASSERT_TRUE(inst.world().castRay(
+        T_frame.translation(), T_frame.linear() * q.normalized(), 125.0, 0.4, hit));
+    ASSERT_LT(std::abs(hit.range_m - q.norm()), 0.08);
+    ++n_inst;
+  }
+  EXPECT_GT(n_inst, 2000u);
+}
+
+TEST(LidarSimulator, PointTimesFollowTheAzimuth)
+{
+  // A turning path at 20 Hz given by timestamps (the period comes from them, not from
+  // frame_period_s). Raw points are in the sensor frame at their own firing time, so
+  // their azimuth is their column's; an instantaneous scan has the same times.
+  const PoseVector path = makePath(PathType::kLoop, 60);
+  std::vector<double> stamps;
+  for (std::size_t k = 0; k < path.size(); ++k)
+    stamps.push_back(100.0 + 0.05 * static_cast<double>(k));
+  for (bool raw_sweep : {false, true}) {
+    SCOPED_TRACE(raw_sweep ? "raw sweep" : "instantaneous");
+    LidarSimulatorParams p = makeParams(SensorModel::kVlp16);
+    p.raw_sweep = raw_sweep;
+    LidarSimulator sim(p, path, stamps);
+    for (std::size_t i : {std::size_t(0), std::size_t(30), path.size() - 1}) {
+      SCOPED_TRACE(i);
+      const double period = sim.framePeriod(i);
+      EXPECT_NEAR(period, 0.05, 1e-9);
+      Cloud cloud;
+      std::vector<float> times{1.0f, 2.0f}; // replaced, not appended to
+      sim.simulateFrame(i, cloud, &times);
+      ASSERT_EQ(times.size(), cloud.size());
+      ASSERT_GT(cloud.size(), 10000u);
+      float lo = 1.0f, hi = -1.0f;
+      for (std::size_t k = 0; k < cloud.size(); ++k) {
+        ASSERT_GE(times[k], -0.5 * period - 1e-7);
+        ASSERT_LE(times[k], 0.5 * period + 1e-7);
+        lo = std::min(lo, times[k]);
+        hi = std::max(hi, times[k]);
+        double diff = times[k] - expectedTau(cloud[k], period);
+        // Exactly behind, +180 and -180 deg are the same direction.
+        if (std::abs(std::abs(diff) - period) < 1e-3)
+          diff = std::abs(diff) - period;
+        ASSERT_LT(std::abs(diff), 1e-3)
+            << "point " << k << " azimuth " << std::atan2(cloud[k].y, cloud[k].x);
+      }
+      EXPECT_LT(lo, -0.49 * period); // the sweep spans the whole period
+      EXPECT_GT(hi, 0.49 * period);
+    }
+  }
+
+  // One frame: the period is frame_period_s.
+  LidarSimulatorParams p = makeParams(SensorModel::kVlp16);
+  p.raw_sweep = true;
+  p.frame_period_s = 0.2;
+  LidarSimulator one(p, PoseVector(1, path[3]));
+  EXPECT_DOUBLE_EQ(one.framePeriod(0), 0.2);
+  Cloud cloud;
+  std::vector<float> times;
+  one.simulateFrame(0, cloud, &times);
+  ASSERT_EQ(times.size(), cloud.size());
+  EXPECT_LT(*std::min_element(times.begin(), times.end()), -0.098);
+  EXPECT_GT(*std::max_element(times.begin(), times.end()), 0.098);
+
+  // A sweep lasts until the next frame: raw sweeps need increasing timestamps.
+  const PoseVector three = makePath(PathType::kStraight, 3);
+  EXPECT_THROW(LidarSimulator(p, three, {0.0, 0.1, 0.1}), std::invalid_argument);
+  EXPECT_THROW(LidarSimulator(p, three, {0.0, NAN, 0.2}), std::invalid_argument);
+  EXPECT_THROW(one.framePeriod(1), std::out_of_range);
+}
+
+TEST(LidarSimulator, SensorPoseAtInterpolates)
+{
+  const PoseVector path = makePath(PathType::kLoop, 60);
+  LidarSimulator sim(makeParams(SensorModel::kHdl64), path);
+  // Exact at the frames.
+  for (std::size_t i : {std::size_t(0), std::size_t(17), path.size() - 1})
+    EXPECT_TRUE(sim.sensorPoseAt(sim.timestamp(i)).isApprox(sim.sensorPose(i), 0.0));
+  // Halfway: the mean position, half the rotation (the loop turns here).
+  const pcl::rast::Pose3d a = path[20], b = path[21];
+  const pcl::rast::Pose3d mid =
+      sim.sensorPoseAt(0.5 * (sim.timestamp(20) + sim.timestamp(21)));
+  EXPECT_LT((mid.translation() - 0.5 * (a.translation() + b.translation())).norm(), 1e-9);
+  const double half = Eigen::AngleAxisd(a.linear().transpose() * mid.linear()).angle();
+  const double full = Eigen::AngleAxisd(a.linear().transpose() * b.linear()).angle();
+  EXPECT_NEAR(half, 0.5 * full, 1e-9);
+  EXPECT_NEAR(
+      Eigen::AngleAxisd(mid.linear().transpose() * b.linear()).angle(), 0.5 * full, 1e-9);
+  // Before the first pose: the first step's motion, backwards.
+  const pcl::rast::Pose3d before = sim.sensorPoseAt(-0.05);
+  EXPECT_LT(
+      (before.translation() -
+       (path[0].translation() - 0.5 * (path[1].translation() - path[0].translation())))
+          .norm(),
+      1e-9);
+  const pcl::rast::Pose3d after = sim.sensorPoseAt(sim.timestamp(59) + 0.05);
+  EXPECT_LT(
+      (after.translation() -
+       (path[59].translation() + 0.5 * (path[59].translation() - path[58].translation())))
+          .norm(),
+      1e-9);
+  EXPECT_THROW(sim.sensorPoseAt(NAN), std::invalid_argument);
+
+  // Handheld: the mounting (tilt and sway) at that time is included.
+  const auto spec = pcl::rast::sensorSpec(SensorModel::kOs0_128);
+  LidarSimulator hand(makeParams(SensorModel::kOs0_128), path);
+  const double t = 0.5 * (hand.timestamp(20) + hand.timestamp(21));
+  EXPECT_TRUE(
+      hand.sensorPoseAt(t).isApprox(mid * pcl::rast::bodyToSensor(spec, t), 1e-12));
+}
+
+TEST(LidarSimulator, WriteSequenceRawSweepPcdTime)
+{
+  const PoseVector path = makePath(PathType::kStraight, 6);
+  LidarSimulatorParams p = makeParams(SensorModel::kVlp16);
+  p.raw_sweep = true;
+  LidarSimulator sim(p, path);
+  const auto dir = pcl_rast_test::makeTempDir("lidar_sim_raw");
+  ASSERT_EQ(sim.writeSequence(dir.string(), pcl::rast::ScanFormat::kPcd, 2, 4, 2), 2u);
+
+  Cloud cloud;
+  std::vector<float> times;
+  sim.simulateFrame(4, cloud, &times);
+  const double period = sim.framePeriod(4);
+  pcl::PCLPointCloud2 blob;
+  ASSERT_EQ(pcl::io::loadPCDFile((dir / "pcd" / "000001.pcd").string(), blob), 0);
+  ASSERT_EQ(static_cast<std::size_t>(blob.width) * blob.height, cloud.size());
+  auto field = [&](const std::string& name) -> const pcl::PCLPointField* {
+    for (const auto& f : blob.fields)
+      if (f.name == name)
+        return &f;
+    return nullptr;
+  };
+  for (const char* name : {"x", "y", "z", "intensity", "time"}) {
+    const pcl::PCLPointField* f = field(name);
+    ASSERT_NE(f, nullptr) << name;
+    EXPECT_EQ(f->datatype, pcl::PCLPointField::FLOAT32) << name;
+    EXPECT_EQ(f->count, 1u) << name;
+  }
+  auto value = [&](const char* name, std::size_t k) {
+    float v;
+    std::memcpy(&v, &blob.data[k * blob.point_step + field(name)->offset], sizeof v);
+    return v;
+  };
+  float lo = 1.0f, hi = -1.0f;
+  for (std::size_t k = 0; k < cloud.size(); ++k) {
+    const float t = value("time", k);
+    ASSERT_GE(t, 0.0f);
+    ASSERT_LE(t, static_cast<float>(period));
+    lo = std::min(lo, t);
+    hi = std::max(hi, t);
+    // Seconds since the sweep start = tau + period / 2; x y z intensity as simulated.
+    ASSERT_NEAR(t, times[k] + 0.5 * period, 1e-6) << k;
+    ASSERT_EQ(value("x", k), cloud[k].x);
+    ASSERT_EQ(value("y", k), cloud[k].y);
+    ASSERT_EQ(value("z", k), cloud[k].z);
+    ASSERT_EQ(value("intensity", k), cloud[k].intensity);
+  }
+  EXPECT_LT(lo, 0.01 * period);
+  EXPECT_GT(hi, 0.99 * period);
+
+  // Instantaneous PCD and raw .bin files stay as they were: no time.
+  LidarSimulator inst(makeParams(SensorModel::kVlp16), path);
+  const auto inst_dir = pcl_rast_test::makeTempDir("lidar_sim_inst");
+  inst.writeSequence(inst_dir.string(), pcl::rast::ScanFormat::kPcd, 0, 0);
+  ASSERT_EQ(pcl::io::loadPCDFile((inst_dir / "pcd" / "000000.pcd").string(), blob), 0);
+  EXPECT_EQ(field("time"), nullptr);
+  EXPECT_NE(field("intensity"), nullptr);
+  sim.writeSequence(dir.string(), pcl::rast::ScanFormat::kBin, 4, 4);
+  EXPECT_EQ(std::filesystem::file_size(dir / "velodyne" / "000000.bin"),
+            cloud.size() * 16u);
 }
 
 // ---- KITTI ground truth as the trajectory ----

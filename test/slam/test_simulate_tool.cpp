@@ -1,6 +1,6 @@
 /// \file test_simulate_tool.cpp
 /// \brief The command-line contract of pcl_rast_simulate: files written, first pose
-/// identity, frame selection, formats, exit codes on bad arguments.
+/// identity, frame selection, formats, raw sweeps, exit codes on bad arguments.
 
 #include "test_data.h"
 
@@ -126,6 +126,35 @@ TEST_F(SimulateTool, BadArgumentsExitOne)
   EXPECT_EQ(runSimulate("-h", log_), 0);
   EXPECT_EQ(runSimulate("-traj '" + (dir_ / "missing.txt").string() + "'" + o, log_), 2);
   EXPECT_FALSE(fs::exists(dir_ / "seq" / "poses.txt"));
+}
+
+TEST_F(SimulateTool, RawSweepSwitch)
+{
+  // Listed by -h (an unknown flag would exit 1 before the help).
+  ASSERT_EQ(runSimulate("-raw-sweep -h", log_), 0);
+  std::ifstream help(log_);
+  const std::string usage((std::istreambuf_iterator<char>(help)), {});
+  EXPECT_NE(usage.find("-raw-sweep"), std::string::npos) << usage;
+
+  // Raw sweeps as PCD carry the time field; instantaneous scans do not.
+  auto pcdFields = [&](const std::string& name) {
+    std::ifstream in(dir_ / name / "pcd" / "000001.pcd", std::ios::binary);
+    for (std::string line; std::getline(in, line);)
+      if (line.rfind("FIELDS", 0) == 0)
+        return line;
+    return std::string("no FIELDS line");
+  };
+  ASSERT_EQ(runSimulate("-path straight -frames 3 -sensor vlp16 -format pcd -raw-sweep "
+                        "-output " +
+                            out("raw"),
+                        log_),
+            0);
+  EXPECT_EQ(pcdFields("raw"), "FIELDS x y z intensity time");
+  ASSERT_EQ(runSimulate("-path straight -frames 3 -sensor vlp16 -format pcd -output " +
+                            out("inst"),
+                        log_),
+            0);
+  EXPECT_EQ(pcdFields("inst"), "FIELDS x y z intensity");
 }
 
 TEST_F(SimulateTool, KittiGroundTruthTrajectory)

@@ -10,6 +10,22 @@
 /// T_body_sensor(t), one ray per beam and azimuth step, range noise / dropouts /
 /// intensity from a counter-based hash of (seed, frame, ray) so frame i never depends on
 /// other frames. \ingroup slam
+///
+/// Scans are instantaneous by default (every column cast from the frame's pose).
+/// With LidarSimulatorParams::raw_sweep they are raw sweeps of a spinning sensor, which
+/// moves while it turns, as motion compensation (deskewing) sees them.
+///
+/// Spin convention (KITTI / Velodyne; the deskewing code relies on it): the head spins
+/// clockwise seen from above, i.e. the azimuth a = atan2(y, x) in the sensor frame
+/// decreases over time. The forward column (a = 0, +x) fires at the frame's timestamp;
+/// the sweep starts behind the sensor (a = +180 deg) at timestamp - period / 2 and ends
+/// behind it (a = -180 deg) at timestamp + period / 2. A point at azimuth a in (-pi, pi]
+/// fires at the offset
+///
+///     tau(a) = -a / (2 pi) * period
+///
+/// from the frame's timestamp, where period = LidarSimulator::framePeriod (the
+/// difference of neighbouring frame timestamps).
 
 #include <Eigen/Core>
 #include <cstddef>
@@ -170,6 +186,17 @@ public:
                 double time_s,
                 std::vector<RayHit>& hits) const;
 
+  /// \brief Cast rays with their own origins: dirs[k] from origins[k] (world frame),
+  /// at time \a time_s (moving cars). Consecutive rays with the same origin share its
+  /// set-up (ground below it, cars in range), so keep them together: one origin per
+  /// column of a raw sweep costs as much as one per frame.
+  /// \throws std::invalid_argument when the sizes differ.
+  void castRays(const std::vector<Eigen::Vector3d>& origins,
+                const std::vector<Eigen::Vector3d>& dirs,
+                double max_range_m,
+                double time_s,
+                std::vector<RayHit>& hits) const;
+
   /// \brief Cast one ray; false when nothing is hit within \a max_range_m.
   bool castRay(const Eigen::Vector3d& origin,
                const Eigen::Vector3d& dir,
@@ -192,6 +219,12 @@ struct LidarSimulatorParams
   double range_noise_std_m = -1.0; ///< < 0: the sensor's default
   double dropout_rate = -1.0;      ///< < 0: the sensor's default
   int num_threads = 1;             ///< ray-casting threads (results do not depend on it)
+  /// Raw sweeps instead of instantaneous scans: each column is cast from the sensor
+  /// pose at its own firing time (see the spin convention in this file's doc) and its
+  /// points are expressed in the sensor frame at that time, not motion-compensated.
+  /// Moving cars (WorldParams::moving_cars) stay where they are at the frame's
+  /// timestamp for the whole sweep. false: bit-identical to the instantaneous scans.
+  bool raw_sweep = false;
 
   bool isValid(std::string* why = nullptr) const;
 };
@@ -200,7 +233,7 @@ struct LidarSimulatorParams
 enum class ScanFormat
 {
   kBin, ///< DIR/velodyne/NNNNNN.bin, KITTI float32 x y z intensity
-  kPcd  ///< DIR/pcd/NNNNNN.pcd, binary PCD
+  kPcd  ///< DIR/pcd/NNNNNN.pcd, binary PCD (raw sweeps: plus a float field `time`)
 };
 
 /// \brief Called after each written frame with (frames done, frames total).
@@ -237,15 +270,42 @@ public:
   /// \brief Ground-truth sensor pose T_world_sensor of frame \a i (includes the
   /// handheld tilt and sway).
   Pose3d sensorPose(std::size_t i) const;
+  /// \brief Ground-truth sensor pose T_world_sensor at any time \a time_s: the body
+  /// pose interpolated between the neighbouring trajectory poses (slerp of the
+  /// rotation, lerp of the translation), extrapolated with the first / last step's
+  /// motion before the first / after the last pose, then the mounting at \a time_s.
+  /// Equals sensorPose(i) at timestamp(i). With one pose the body does not move.
+  /// \throws std::invalid_argument when \a time_s is not finite.
+  Pose3d sensorPoseAt(double time_s) const;
+  /// \brief Sweep period of frame \a i in seconds: timestamp(i + 1) - timestamp(i)
+  /// (timestamp(i) - timestamp(i - 1) for the last frame), frame_period_s when there
+  /// is only one frame.
+  /// \throws std::out_of_range when \a i >= numFrames(), std::invalid_argument when
+  /// the timestamps do not increase there.
+  double framePeriod(std::size_t i) const;
 
-  /// \brief Simulate frame \a i into \a cloud (sensor frame, x y z intensity).
+  /// \brief Simulate frame \a i into \a cloud (sensor frame, x y z intensity): an
+  /// instantaneous scan, or a raw sweep with LidarSimulatorParams::raw_sweep (each
+  /// point in the sensor frame at its own firing time).
+  /// \param[in] i frame index
+  /// \param[out] cloud the points, column by column (azimuth 0 first, then
+  /// counter-clockwise, so not in firing order), beams top to bottom within a column
+  /// \param[out] point_times_s when not null: per point of \a cloud (same order) its
+  /// firing-time offset tau(azimuth) = -azimuth / (2 pi) * framePeriod(i) from
+  /// timestamp(i), in [-period / 2, period / 2]. Filled in both modes (an
+  /// instantaneous scan has the same firing times, it just ignores them).
   /// \throws std::out_of_range when \a i >= numFrames().
-  void simulateFrame(std::size_t i, pcl::PointCloud<pcl::PointXYZI>& cloud) const;
+  void simulateFrame(std::size_t i,
+                     pcl::PointCloud<pcl::PointXYZI>& cloud,
+                     std::vector<float>* point_times_s = nullptr) const;
 
   /// \brief Write frames first, first + every, ..., <= last as a KITTI-like sequence:
   /// DIR/velodyne/000000.bin... (or DIR/pcd/000000.pcd), DIR/poses.txt (sensor
   /// poses re-based so the first written pose is the identity) and DIR/times.txt
-  /// (timestamps relative to the first written frame).
+  /// (timestamps relative to the first written frame). A raw sweep written as PCD has
+  /// one more float field `time`: seconds since the sweep start (tau + period / 2, in
+  /// [0, period]) as the Velodyne driver writes it; `.bin` files cannot carry it (it
+  /// is implied by the azimuth) and are written as for instantaneous scans.
   /// \return the number of frames written.
   /// \throws std::invalid_argument on a bad range, std::runtime_error on I/O failure.
   std::size_t writeSequence(const std::string& dir,
