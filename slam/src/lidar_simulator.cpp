@@ -2,6 +2,7 @@
 /// \brief Sensor models, generated paths and LidarSimulator (frames and sequences).
 
 #include <algorithm>
+#include <numeric>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -601,7 +602,17 @@ LidarSimulator::simulateFrame(std::size_t i,
   }
   const double max_r = spec_.max_range_m;
   const std::uint64_t frame_key = frameKey(params_.seed, i);
-  for (std::size_t k = 0; k < n; ++k) {
+  // A raw sweep comes out in firing order, as a driver writes it (the reader checks
+  // that a time field is in order); an instantaneous scan column by column from
+  // azimuth 0, as before.
+  std::vector<std::size_t> columns(n / beams);
+  std::iota(columns.begin(), columns.end(), std::size_t{0});
+  if (raw)
+    std::stable_sort(columns.begin(), columns.end(), [&](std::size_t a, std::size_t b) {
+      return column_tau_s[a] < column_tau_s[b];
+    });
+  for (std::size_t k_index = 0; k_index < n; ++k_index) {
+    const std::size_t k = columns[k_index / beams] * beams + k_index % beams;
     const RayHit& h = hits[k];
     if (h.range_m <= 0.0)
       continue;
