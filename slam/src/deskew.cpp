@@ -34,30 +34,32 @@ leftJacobian(const Eigen::Vector3d& w)
          (theta - std::sin(theta)) / (t2 * theta) * W * W;
 }
 
-/// atan2 to 2e-8 rad at a fraction of std::atan2's cost: the polynomial of atan on
-/// [0, 1] of Abramowitz & Stegun 4.4.49, then the octant.
-inline double
-fastAtan2(double y, double x)
+/// atan2 in single precision, to ~3e-7 rad (5 ns of a 0.1 s sweep) at a fraction of
+/// std::atan2's cost: the polynomial of atan on [0, 1] of Abramowitz & Stegun 4.4.49
+/// (2e-8 rad), then the octant.
+inline float
+fastAtan2(float y, float x)
 {
-  const double ax = std::abs(x), ay = std::abs(y);
-  const double mx = std::max(ax, ay);
-  if (mx == 0.0)
-    return 0.0;
-  const double a = std::min(ax, ay) / mx;
-  const double s = a * a;
-  double r =
-      a * (1.0 + s * (-0.3333314528 +
-                      s * (0.1999355085 +
-                           s * (-0.1420889944 +
-                                s * (0.1065626393 +
-                                     s * (-0.0752896400 +
-                                          s * (0.0429096138 +
-                                               s * (-0.0161657367 + s * 0.0028662257))))))));
+  constexpr float kPiF = 3.14159265f;
+  const float ax = std::abs(x), ay = std::abs(y);
+  const float mx = std::max(ax, ay);
+  if (mx == 0.0f)
+    return 0.0f;
+  const float a = std::min(ax, ay) / mx;
+  const float s = a * a;
+  float r =
+      a * (1.0f + s * (-0.3333314528f +
+                       s * (0.1999355085f +
+                            s * (-0.1420889944f +
+                                 s * (0.1065626393f +
+                                      s * (-0.0752896400f +
+                                           s * (0.0429096138f +
+                                                s * (-0.0161657367f + s * 0.0028662257f))))))));
   if (ay > ax)
-    r = 0.5 * kPi - r;
-  if (x < 0.0)
-    r = kPi - r;
-  return y < 0.0 ? -r : r;
+    r = 0.5f * kPiF - r;
+  if (x < 0.0f)
+    r = kPiF - r;
+  return y < 0.0f ? -r : r;
 }
 
 } // namespace
@@ -112,16 +114,18 @@ azimuthTimes(const pcl::PointCloud<pcl::PointXYZI>& cloud,
   const double reference = std::remainder(sweep.reference_azimuth_deg * kPi / 180.0, 2.0 * kPi);
   // Clockwise: azimuth falls over time, so a point at +a (before the reference column
   // in the sweep) fired earlier: tau = -a / (2 pi) * period.
-  const double scale = (sweep.clockwise ? -1.0 : 1.0) * period_s / (2.0 * kPi);
+  const auto scale = static_cast<float>((sweep.clockwise ? -1.0 : 1.0) * period_s / (2.0 * kPi));
+  const auto ref = static_cast<float>(reference);
+  constexpr auto kPiF = static_cast<float>(kPi), k2PiF = static_cast<float>(2.0 * kPi);
   std::vector<float> times(cloud.size());
   for (std::size_t i = 0; i < cloud.size(); ++i) {
     const auto& p = cloud.points[i];
-    double a = fastAtan2(p.y, p.x) - reference;
-    if (a > kPi) // into (-pi, pi]
-      a -= 2.0 * kPi;
-    else if (a <= -kPi)
-      a += 2.0 * kPi;
-    times[i] = static_cast<float>(scale * a);
+    float a = fastAtan2(p.y, p.x) - ref;
+    if (a > kPiF) // into (-pi, pi]
+      a -= k2PiF;
+    else if (a <= -kPiF)
+      a += k2PiF;
+    times[i] = scale * a;
   }
   return times;
 }

@@ -13,6 +13,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <optional>
+#include <numeric>
 #include <stdexcept>
 #include <vector>
 
@@ -671,16 +673,14 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   //    prior itself.
   start = Clock::now();
   // Subsample the voxel indices, then copy only the points kept.
-  auto sourcePoints = [&](const pcl::PointCloud<pcl::PointXYZI>& scan) {
-    return odometry_detail::toPoints(
-        scan, odometry_detail::strideSubsample(
-                  odometry_detail::voxelDownsampleIndices(scan, params.dense.source_voxel_size_m,
-                                                          in_range),
-                  static_cast<std::size_t>(params.dense.max_source_points)));
-  };
+  std::vector<int> source_indices;
   Points3f source;
-  if (params.registration.refine || !features_ok)
-    source = sourcePoints(*cloud);
+  if (params.registration.refine || !features_ok) {
+    source_indices = odometry_detail::strideSubsample(
+        odometry_detail::voxelDownsampleIndices(*cloud, params.dense.source_voxel_size_m, in_range),
+        static_cast<std::size_t>(params.dense.max_source_points));
+    source = odometry_detail::toPoints(*cloud, source_indices);
+  }
   auto keepDense = [&result](const DenseResult& dense) {
     result.dense_correspondences = dense.num_correspondences;
     result.dense_degenerate_directions = dense.degenerate_directions;
@@ -835,19 +835,28 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   result.timings.refine_ms = msSince(start);
 
   // 5b. Second pass of the motion compensation: where the estimated motion differs from
-  //     the previous frame's (a stop, a start, a turn), compensate the scan with it and
-  //     refine once more from the estimate.
-  if (times && num_poses >= 2 && result.refined) {
+  //     the previous frame's (a stop, a start, a turn), compensate the dense step's source
+  //     points with it and refine once more from the estimate. The whole scan is
+  //     compensated again only if it is kept (key-frame, young map).
+  std::optional<Twist> xi_final;
+  if (times && num_poses >= 2 && result.refined && !source_indices.empty()) {
     start = Clock::now();
     const Pose3d T_motion = T_world_last.inverse() * result.T_world_lidar;
     const Pose3d change = T_motion_prior.inverse() * T_motion;
     if (change.translation().norm() > params.deskew.second_pass_translation_m ||
         angleDeg(change) > params.deskew.second_pass_rotation_deg) {
-      auto again = deskewCloud(input, *times, logSE3(T_motion) / dt, params.deskew.bins);
-      const DenseResult dense =
-          registerToMap(sourcePoints(*again), map, result.T_world_lidar, params.dense);
+      const Twist xi = logSE3(T_motion) / dt;
+      const pcl::PointCloud<pcl::PointXYZI> raw_source(input, source_indices);
+      std::vector<float> source_times(source_indices.size());
+      for (std::size_t k = 0; k < source_indices.size(); ++k)
+        source_times[k] = (*times)[static_cast<std::size_t>(source_indices[k])];
+      const auto again = deskewCloud(raw_source, source_times, xi, params.deskew.bins);
+      std::vector<int> all(again->size());
+      std::iota(all.begin(), all.end(), 0);
+      const DenseResult dense = registerToMap(odometry_detail::toPoints(*again, all), map,
+                                              result.T_world_lidar, params.dense);
       if (dense.success) {
-        cloud = again;
+        xi_final = xi;
         keepDense(dense);
         result.T_world_lidar = dense.T_world_lidar;
         result.deskew_second_pass = true;
@@ -855,6 +864,15 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     }
     result.timings.deskew_ms += msSince(start);
   }
+  auto keptCloud = [&]() -> const pcl::PointCloud<pcl::PointXYZI>& {
+    if (xi_final) {
+      const auto t0 = Clock::now();
+      cloud = deskewCloud(input, *times, *xi_final, params.deskew.bins);
+      xi_final.reset();
+      result.timings.deskew_ms += msSince(t0);
+    }
+    return *cloud;
+  };
 
   // 6. Key-frame decision: the paper's rule (sec. 7.3) plus safety rules. The pose is
   //    final here; it is kept on SO(3) (single-precision steps add ~1e-7 each).
@@ -879,7 +897,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   const bool weak = result.num_inliers < params.keyframe_min_inliers && useful;
   const bool reanchor = frames_without_tracking + 1 >= kReanchorAfterFrames && useful;
   if ((tracked && (paper_rule || far || weak)) || reanchor) {
-    result.keyframe = makeKeyFrame(result, std::move(*features), *cloud);
+    result.keyframe = makeKeyFrame(result, std::move(*features), keptCloud());
     result.reference_keyframe = result.keyframe->id;
     result.T_keyframe_lidar = Pose3d::Identity();
     if (!tracked) {
@@ -888,7 +906,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     }
   }
   if (!result.keyframe && tracked && result.refined && map_scans < params.dense.young_map_scans)
-    insertIntoMap(*cloud, result.T_world_lidar);
+    insertIntoMap(keptCloud(), result.T_world_lidar);
   result.timings.keyframe_ms = msSince(start);
   if (tracked && !result.keyframe) {
     last_features = features;
