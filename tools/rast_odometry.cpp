@@ -50,7 +50,7 @@ run(int argc, char** argv)
   namespace rast = pcl::rast;
   rast::OdometryParams params;
   std::string input, output, sensor = "auto", deskew = "auto";
-  double deskew_reference_deg = 0.0;
+  double deskew_reference_deg = 0.0, deskew_period_s = 0.0;
   bool deskew_ccw = false;
   int first = 0, last = -1, stride = 1;
   bool no_refine = false, no_loose_rematch = false, level = params.ground.level_cloud;
@@ -69,13 +69,15 @@ run(int argc, char** argv)
   args.addInt("last", "last scan, inclusive (-1: the last one)", &last);
   args.addInt("stride", "use every K-th scan (5 turns 10 Hz into 2 Hz)", &stride);
   args.addChoice("deskew",
-                 "motion compensation of raw sweeps (auto: with the scans' time field, or "
-                 "from the azimuth for KITTI .bin scans; doc/odometry.md)",
+                 "motion compensation of raw sweeps (auto: with the scans' own time field, "
+                 "others as they are; on: else times from the azimuth; doc/odometry.md)",
                  &deskew, deskewChoices());
   args.addDouble("deskew-reference",
                  "azimuth times: azimuth [deg] of the column firing at the frame time "
                  "(0: forward, KITTI; 180: behind)",
                  &deskew_reference_deg);
+  args.addDouble("deskew-period",
+                 "sweep period [s] (0: from times.txt, else 0.1 s)", &deskew_period_s);
   args.addSwitch("deskew-ccw", "azimuth times: the head spins counter-clockwise seen from above",
                  &deskew_ccw);
   args.addChoice("sensor", "parameter preset (auto: guessed from the first scan)", &sensor,
@@ -115,6 +117,9 @@ run(int argc, char** argv)
   // Validate everything before any work.
   if (first < 0 || stride < 1 || last < -1 || (last >= 0 && last < first))
     throw std::invalid_argument("need -first >= 0, -stride >= 1, -last -1 or >= -first");
+  if (!(deskew_period_s >= 0.0 && deskew_period_s <= 1.0))
+    throw std::invalid_argument("-deskew-period must be in [0, 1] s, got " +
+                                std::to_string(deskew_period_s));
   if (!(std::abs(deskew_reference_deg) <= 360.0))
     throw std::invalid_argument("-deskew-reference must be within +-360 deg, got " +
                                 std::to_string(deskew_reference_deg));
@@ -170,8 +175,11 @@ run(int argc, char** argv)
   params.deskew.mode = resolveDeskewMode(deskew, reader, deskew_reason);
   params.deskew.sweep.reference_azimuth_deg = deskew_reference_deg;
   params.deskew.sweep.clockwise = !deskew_ccw;
-  std::fprintf(stderr, "Deskew %s (%s)\n", rast::toString(params.deskew.mode),
-               deskew_reason.c_str());
+  std::string deskew_timing;
+  configureDeskewTiming(reader, static_cast<std::size_t>(stride), deskew_period_s, params.deskew,
+                        deskew_timing);
+  std::fprintf(stderr, "Deskew %s (%s; %s)\n", rast::toString(params.deskew.mode),
+               deskew_reason.c_str(), deskew_timing.c_str());
   applyFlags(params);
 
   const InjectedFault fault = injectedFault({"tracking"});
@@ -252,12 +260,15 @@ run(int argc, char** argv)
   summary["sensor"] = rast::toString(preset);
   summary["deskew"] = {{"mode", rast::toString(params.deskew.mode)},
                        {"reason", deskew_reason},
+                       {"timing", deskew_timing},
                        {"frames_by_time_source", deskewed},
                        {"second_passes", second_passes},
                        {"time_field_warnings", time_warnings}};
   summary["max_rotation_error"] = rast::maxRotationError(poses);
   summary["error"] = run_error ? nlohmann::json(error_message) : nlohmann::json(nullptr);
-  rast::writeFileAtomically(output + "/summary.json", summary.dump(2) + "\n");
+  rast::writeFileAtomically(
+      output + "/summary.json",
+      summary.dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n");
   std::string counts;
   for (const auto& [name, count] : status_counts)
     counts += " " + name + "=" + std::to_string(count);

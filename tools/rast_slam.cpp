@@ -333,7 +333,7 @@ run(int argc, char** argv)
   double map_leaf_m = 0.2;
   bool software_render = false, quiet = false;
   std::string sensor = "auto", deskew = "auto";
-  double deskew_reference_deg = 0.0;
+  double deskew_reference_deg = 0.0, deskew_period_s = 0.0;
   bool deskew_ccw = false;
 
   ArgParser parser("pcl_rast_slam",
@@ -354,13 +354,16 @@ run(int argc, char** argv)
   parser.addChoice("threads", "on: three threads; off: deterministic, one thread", &threads,
                    {"on", "off"});
   parser.addChoice("deskew",
-                   "motion compensation of raw sweeps (auto: with the scans' time field, or "
-                   "from the azimuth for KITTI .bin scans; doc/odometry.md)",
+                   "motion compensation of raw sweeps (auto: with the scans' own time "
+                   "field, others as they are; on: else times from the azimuth; "
+                   "doc/odometry.md)",
                    &deskew, pcl_rast_tools::deskewChoices());
   parser.addDouble("deskew-reference",
                    "azimuth times: azimuth [deg] of the column firing at the frame time "
                    "(0: forward, KITTI; 180: behind)",
                    &deskew_reference_deg);
+  parser.addDouble("deskew-period", "sweep period [s] (0: from times.txt, else 0.1 s)",
+                   &deskew_period_s);
   parser.addSwitch("deskew-ccw",
                    "azimuth times: the head spins counter-clockwise seen from above", &deskew_ccw);
   parser.addChoice("sensor", "parameter preset (auto: guessed from the first scan)", &sensor,
@@ -395,6 +398,9 @@ run(int argc, char** argv)
   if (young_map_scans < 1)
     throw std::invalid_argument("-young-map-scans must be >= 1, got " +
                                 std::to_string(young_map_scans));
+  if (!(deskew_period_s >= 0.0 && deskew_period_s <= 1.0))
+    throw std::invalid_argument("-deskew-period must be in [0, 1] s, got " +
+                                std::to_string(deskew_period_s));
   if (!(std::abs(deskew_reference_deg) <= 360.0))
     throw std::invalid_argument("-deskew-reference must be within +-360 deg, got " +
                                 std::to_string(deskew_reference_deg));
@@ -443,8 +449,11 @@ run(int argc, char** argv)
   params.odometry.deskew.mode = pcl_rast_tools::resolveDeskewMode(deskew, reader, deskew_reason);
   params.odometry.deskew.sweep.reference_azimuth_deg = deskew_reference_deg;
   params.odometry.deskew.sweep.clockwise = !deskew_ccw;
+  std::string deskew_timing;
+  pcl_rast_tools::configureDeskewTiming(reader, static_cast<std::size_t>(stride), deskew_period_s,
+                                        params.odometry.deskew, deskew_timing);
   std::cerr << "Deskew " << rast::toString(params.odometry.deskew.mode) << " (" << deskew_reason
-            << ")\n";
+            << "; " << deskew_timing << ")\n";
   if (parser.given("young-map-scans"))
     params.odometry.dense.young_map_scans = young_map_scans;
   if (!params.isValid(&why))
@@ -675,6 +684,7 @@ run(int argc, char** argv)
                        {"sensor", rast::toString(preset)},
                        {"deskew", rast::toString(params.odometry.deskew.mode)},
                        {"deskew_reason", deskew_reason},
+                       {"deskew_timing", deskew_timing},
                        {"sensor_choice", sensor_reason},
                        {"loop_closure", params.loop_closing.enable},
                        {"revisit_culling", params.loop_closing.cull_revisits},
@@ -708,7 +718,9 @@ run(int argc, char** argv)
       summary["kitti_r_err_deg_per_100m"] = nullptr;
     }
   }
-  rast::writeFileAtomically((out / "summary.json").string(), summary.dump(2) + "\n");
+  // Paths and messages may hold any bytes: invalid UTF-8 is replaced, never a throw.
+  rast::writeFileAtomically((out / "summary.json").string(),
+                            summary.dump(2, ' ', false, json::error_handler_t::replace) + "\n");
 
   std::cerr << "Wrote " << (out / "poses_kitti.txt").string() << ", poses_tum.txt, map.pcd ("
             << map_points << " points), render.png (" << render.backend

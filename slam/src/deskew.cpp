@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 namespace pcl {
@@ -142,10 +143,17 @@ deskewCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud,
   if (bins < 1)
     throw std::invalid_argument("deskewCloud: bins must be >= 1, got " + std::to_string(bins));
   auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>(cloud);
-  if (cloud.empty())
+  // The range of the finite times; a point with a non-finite time (or coordinate) is
+  // left as it is.
+  float lo_f = std::numeric_limits<float>::infinity(), hi_f = -lo_f;
+  for (const float t : times_s)
+    if (std::isfinite(t)) {
+      lo_f = std::min(lo_f, t);
+      hi_f = std::max(hi_f, t);
+    }
+  if (!(lo_f <= hi_f) || !xi_per_s.allFinite())
     return out;
-  const auto [lo_it, hi_it] = std::minmax_element(times_s.begin(), times_s.end());
-  const double lo = *lo_it, span = static_cast<double>(*hi_it) - lo;
+  const double lo = lo_f, span = static_cast<double>(hi_f) - lo;
   const int n = span > 0.0 ? bins : 1;
   // One transform per bin, at the bin's middle time.
   std::vector<Eigen::Matrix<float, 3, 4>> transforms(static_cast<std::size_t>(n));
@@ -156,6 +164,8 @@ deskewCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud,
   }
   const double to_bin = span > 0.0 ? n / span : 0.0;
   for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!std::isfinite(times_s[i]))
+      continue;
     const int b = std::min(n - 1, static_cast<int>((times_s[i] - lo) * to_bin));
     const Eigen::Matrix<float, 3, 4>& T = transforms[static_cast<std::size_t>(b)];
     auto& p = out->points[i];

@@ -346,6 +346,9 @@ DeskewParams::isValid(std::string* why) const
   else if (!std::isfinite(sweep_period_s) || sweep_period_s > 1.0)
     reason = "sweep_period_s must be finite and <= 1 s (<= 0: the frame interval), got " +
              std::to_string(sweep_period_s);
+  else if (!(seconds_per_timestamp > 0.0) || !std::isfinite(seconds_per_timestamp))
+    reason = "seconds_per_timestamp must be > 0 and finite, got " +
+             std::to_string(seconds_per_timestamp);
   else if (!(second_pass_translation_m >= 0.0) || !(second_pass_rotation_deg >= 0.0))
     reason = "second_pass_translation_m and second_pass_rotation_deg must be >= 0";
   else if (bins < 1 || bins > 65536)
@@ -370,6 +373,12 @@ struct Odometry::Impl
   OrbRasterFeatureEstimator orb;
   VoxelPlaneMap map;
   int map_scans = 0; ///< scans inserted into the map so far
+  /// The scan that started the map, while it could not be motion-compensated yet (no
+  /// motion before it): kept with its times until the next frame's motion is known.
+  pcl::PointCloud<pcl::PointXYZI>::ConstPtr first_scan;
+  std::vector<float> first_times;
+  Pose3d T_world_first = Pose3d::Identity();
+  double t_first = 0.0;
 
   // The key-frame tracked against. Only its immutable parts (features) are read:
   // its pose may be corrected by the back end, tracking keeps its own copy.
@@ -557,7 +566,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   // 0b. Motion compensation (deskew.h) with the previous frame's motion; every step
   //     below, the key-frame's cloud and the local map use the compensated scan.
   auto start = Clock::now();
-  const double dt = frameInterval(result.timestamp_s);
+  const double dt = frameInterval(result.timestamp_s) * params.deskew.seconds_per_timestamp;
   std::vector<float> azimuth_times;
   const std::vector<float>* times =
       sweepTimes(input, point_times, dt, azimuth_times, result.deskew_times);
@@ -594,6 +603,12 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
 
   // The first usable frame starts the map.
   if (!keyframe) {
+    if (times) {
+      first_scan = input_ptr;
+      first_times = *times;
+      T_world_first = result.T_world_lidar;
+      t_first = result.timestamp_s;
+    }
     result.status = TrackingStatus::kFirstFrame;
     result.message = "first frame: key-frame 0";
     start = Clock::now();
@@ -855,7 +870,9 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
       std::iota(all.begin(), all.end(), 0);
       const DenseResult dense = registerToMap(odometry_detail::toPoints(*again, all), map,
                                               result.T_world_lidar, params.dense);
-      if (dense.success) {
+      // Kept when it pairs about as well as the first fit (a compensation that does not
+      // fit the map is not the better one).
+      if (dense.success && dense.num_correspondences >= 0.95 * result.dense_correspondences) {
         xi_final = xi;
         keepDense(dense);
         result.T_world_lidar = dense.T_world_lidar;
@@ -863,6 +880,22 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
       }
     }
     result.timings.deskew_ms += msSince(start);
+  }
+  // 5c. The scan that started the map was used as it was (no motion before it). Once the
+  //     next frame's motion is known, the local map is rebuilt from that scan
+  //     compensated with it (the key-frame's own stored cloud stays as it was).
+  if (first_scan) {
+    const double dt_first = (result.timestamp_s - t_first) * params.deskew.seconds_per_timestamp;
+    if (result.refined && map_scans == 1 && dt_first > 1e-6 && dt_first < 1.0) {
+      start = Clock::now();
+      const Twist xi = logSE3(T_world_first.inverse() * result.T_world_lidar) / dt_first;
+      map = VoxelPlaneMap(params.dense);
+      map_scans = 0;
+      insertIntoMap(*deskewCloud(*first_scan, first_times, xi, params.deskew.bins), T_world_first);
+      result.timings.deskew_ms += msSince(start);
+    }
+    first_scan.reset();
+    first_times.clear();
   }
   auto keptCloud = [&]() -> const pcl::PointCloud<pcl::PointXYZI>& {
     if (xi_final) {
@@ -957,7 +990,10 @@ Odometry::Impl::sweepTimes(const pcl::PointCloud<pcl::PointXYZI>& input,
 {
   if (params.deskew.mode == DeskewMode::kOff)
     return nullptr;
-  if (!given.empty() && given.size() == input.size()) {
+  // Given times are used when there is one per point, all finite, spanning at most a
+  // second (a sweep); otherwise processFrame reports them and they are ignored.
+  if (!given.empty() && given.size() == input.size() &&
+      std::all_of(given.begin(), given.end(), [](float t) { return std::abs(t) <= 1.0f; })) {
     source = "field";
     return &given;
   }
@@ -996,6 +1032,9 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
     if (!point_times_s.empty() && point_times_s.size() != cloud->size())
       result.message += "; " + std::to_string(point_times_s.size()) + " point times for " +
                         std::to_string(cloud->size()) + " points: ignored";
+    else if (!std::all_of(point_times_s.begin(), point_times_s.end(),
+                          [](float t) { return std::abs(t) <= 1.0f; }))
+      result.message += "; point times not finite or beyond +-1 s: ignored";
   } catch (const std::exception& e) {
     // Bad data must not stop the odometry: report it and predict.
     result = OdometryFrameResult();

@@ -572,14 +572,21 @@ struct RastSlam::Impl
     }
     if (!r.keyframe)
       return;
-    notify(SlamStage::kTracking, *r.keyframe);
-    if (params.deterministic) {
-      mapKeyFrame(r.keyframe);
-      closeLoops(r.keyframe);
+    // An error of a stage run here (the tracking observer; every stage in deterministic
+    // mode) ends the run as a worker's does: recorded, so that later calls and finish()
+    // report it, and thrown to the caller now.
+    try {
+      notify(SlamStage::kTracking, *r.keyframe);
+      if (params.deterministic) {
+        mapKeyFrame(r.keyframe);
+        closeLoops(r.keyframe);
+      }
+    } catch (...) {
+      recordError(std::current_exception());
+      throw;
     }
-    else {
+    if (!params.deterministic)
       mapping_queue.push(r.keyframe);
-    }
   }
 
   void finish()

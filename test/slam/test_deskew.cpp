@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <random>
 #include <stdexcept>
 
@@ -135,6 +136,36 @@ TEST(Deskew, RawSweepOfAKnownMotionIsRecovered)
   EXPECT_THROW(deskewCloud(raw, std::vector<float>(3, 0.0f), xi), std::invalid_argument);
   EXPECT_THROW(deskewCloud(raw, times, xi, 0), std::invalid_argument);
   EXPECT_TRUE(deskewCloud(pcl::PointCloud<pcl::PointXYZI>(), {}, xi)->empty());
+}
+
+/// A NaN time or point leaves that point as it is and the others compensated: no NaN
+/// spreads over the scan, no time outside the range indexes a bin.
+TEST(Deskew, NonFiniteTimesAndPointsAreLeftAsTheyAre)
+{
+  pcl::PointCloud<pcl::PointXYZI> cloud;
+  for (int i = 0; i < 100; ++i)
+    cloud.push_back(point(10.0, 0.1 * i, 0.0));
+  cloud[5].x = std::numeric_limits<float>::quiet_NaN();
+  std::vector<float> times(cloud.size());
+  for (std::size_t i = 0; i < times.size(); ++i)
+    times[i] = -0.05f + 0.001f * static_cast<float>(i);
+  times[0] = std::numeric_limits<float>::quiet_NaN(); // was the minimum's place
+  times[1] = std::numeric_limits<float>::infinity();
+  Twist xi = Twist::Zero();
+  xi(0) = 10.0;
+  const auto out = deskewCloud(cloud, times, xi);
+  EXPECT_FLOAT_EQ((*out)[0].x, cloud[0].x); // NaN time: as it is
+  EXPECT_FLOAT_EQ((*out)[1].x, cloud[1].x); // infinite time: as it is
+  EXPECT_TRUE(std::isnan((*out)[5].x));     // a NaN point stays NaN, alone
+  for (std::size_t i = 2; i < cloud.size(); ++i) {
+    if (i == 5)
+      continue;
+    ASSERT_TRUE(std::isfinite((*out)[i].x)) << i;
+    EXPECT_NEAR((*out)[i].x - cloud[i].x, 10.0 * times[i], 2e-3) << i;
+  }
+  // A NaN twist leaves the whole cloud as it is.
+  const auto same = deskewCloud(cloud, times, Twist::Constant(std::nan("")));
+  EXPECT_FLOAT_EQ((*same)[50].x, cloud[50].x);
 }
 
 } // namespace

@@ -152,4 +152,38 @@ TEST(LongDrive, LoopClosingErrorEndsTheRunWithoutLosingIt)
   EXPECT_LT(evaluateTrajectory(r.frame_poses, gt).ate_rmse_m, 0.5);
 }
 
+/// In deterministic mode every stage runs on the caller's thread: a stage's error is
+/// thrown by addScan and ends the run (later scans are refused with it, finish reports
+/// it), and what was processed stays readable.
+TEST(LongDrive, DeterministicStageErrorEndsTheRun)
+{
+  SlamParams params = longDriveParams(true);
+  const std::unique_ptr<LidarSimulator> sim = makeSimulator();
+  RastSlam slam(params);
+  slam.setKeyFrameObserver([](SlamStage stage, const KeyFrame& kf) {
+    if (stage == SlamStage::kLocalMapping && kf.id == 5)
+      throw std::runtime_error("injected: local mapping fails");
+  });
+  std::size_t added = 0;
+  bool thrown = false;
+  for (std::size_t i = 0; i < 20 && !thrown; ++i) {
+    auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    sim->simulateFrame(i, *cloud);
+    try {
+      slam.addScan(cloud, sim->timestamp(i), i);
+      ++added;
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find("injected"), std::string::npos);
+      thrown = true;
+    }
+  }
+  ASSERT_TRUE(thrown);
+  auto next = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+  sim->simulateFrame(30, *next);
+  EXPECT_ANY_THROW(slam.addScan(next, sim->timestamp(30), 30)) << "the run must have ended";
+  EXPECT_NO_THROW(slam.finish()); // reported already
+  EXPECT_EQ(slam.framePoses().size(), added + 1); // the failing frame was tracked
+  EXPECT_GE(slam.keyFramePoses().size(), 6u);
+}
+
 } // namespace

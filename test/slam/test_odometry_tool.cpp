@@ -239,6 +239,10 @@ TEST_F(OdometryTool, DeskewModeIsChosenAndReported)
     const auto timing = readLines(out / "timing.csv");
     ASSERT_EQ(timing.size(), 13u);
     EXPECT_NE(timing[0].find(",deskew_ms,deskew"), std::string::npos) << timing[0];
+    // The sweep period from times.txt (0.1 s), not the frame interval.
+    EXPECT_NE(deskew["timing"].get<std::string>().find("sweep period 0.100000 s (times.txt)"),
+              std::string::npos)
+        << deskew.dump();
     if (mode == "on") {
       // Every frame gets azimuth times (before two poses there is no motion to apply).
       EXPECT_EQ(deskew["frames_by_time_source"]["azimuth"].get<int>(), 12);
@@ -248,6 +252,33 @@ TEST_F(OdometryTool, DeskewModeIsChosenAndReported)
       EXPECT_NE(timing[5].find(",none"), std::string::npos) << timing[5];
     }
   }
+  // Every other frame of a 10 Hz sequence: still a 0.1 s sweep. Without times.txt the
+  // timestamps are file indices, taken as 10 Hz sweeps.
+  const fs::path strided = dir_ / "strided";
+  ASSERT_EQ(runOdometry("-input '" + seq.string() + "' -output '" + strided.string() +
+                            "' -deskew on -stride 2",
+                        log_),
+            0)
+      << readAll(log_);
+  EXPECT_NE(nlohmann::json::parse(readAll(strided / "summary.json"))["deskew"]["timing"]
+                .get<std::string>()
+                .find("sweep period 0.100000 s (times.txt)"),
+            std::string::npos);
+  fs::remove(seq / "times.txt");
+  const fs::path no_times = dir_ / "no_times";
+  ASSERT_EQ(runOdometry("-input '" + seq.string() + "' -output '" + no_times.string() +
+                            "' -deskew on",
+                        log_),
+            0)
+      << readAll(log_);
+  EXPECT_NE(nlohmann::json::parse(readAll(no_times / "summary.json"))["deskew"]["timing"]
+                .get<std::string>()
+                .find("no times.txt"),
+            std::string::npos);
+  EXPECT_EQ(runOdometry("-input '" + seq.string() + "' -output '" + no_times.string() +
+                            "' -deskew-period 2",
+                        log_),
+            1);
 }
 
 } // namespace

@@ -69,4 +69,34 @@ resolveDeskewMode(const std::string& choice,
   return pcl::rast::DeskewMode::kAuto;
 }
 
+void
+configureDeskewTiming(const pcl::rast::SequenceReader& reader,
+                      std::size_t stride,
+                      double period_s,
+                      pcl::rast::DeskewParams& params,
+                      std::string& note)
+{
+  const bool seconds = !reader.timesPath().empty();
+  double period = period_s;
+  if (period > 0.0) {
+    note = "sweep period " + std::to_string(period) + " s (-deskew-period)";
+  }
+  else if (seconds && reader.size() >= 2) {
+    std::vector<double> gaps;
+    for (std::size_t i = 1; i < reader.size(); ++i)
+      gaps.push_back((reader.timestamp(i) - reader.timestamp(i - 1)) / static_cast<double>(stride));
+    std::nth_element(gaps.begin(), gaps.begin() + gaps.size() / 2, gaps.end());
+    period = gaps[gaps.size() / 2];
+    if (!(period > 0.005 && period < 1.0))
+      period = 0.1; // times.txt does not look like sweeps of a spinning head
+    note = "sweep period " + std::to_string(period) + " s (times.txt)";
+  }
+  else {
+    period = 0.1;
+    note = "sweep period 0.1 s (10 Hz: no times.txt; -deskew-period to change)";
+  }
+  params.sweep_period_s = period;
+  params.seconds_per_timestamp = seconds ? 1.0 : period;
+}
+
 } // namespace pcl_rast_tools

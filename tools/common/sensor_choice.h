@@ -32,4 +32,15 @@ pcl::rast::DeskewMode resolveDeskewMode(const std::string& choice,
                                         const pcl::rast::SequenceReader& reader,
                                         std::string& reason);
 
+/// \brief The time base of motion compensation: the sweep period is \a period_s when
+/// given (> 0), else the median interval between consecutive scan files from
+/// times.txt (the selected frames' interval divided by \a stride), else 0.1 s (10 Hz).
+/// Without times.txt the timestamps are file indices: one index is one sweep period.
+/// \a note says which (log, summary).
+void configureDeskewTiming(const pcl::rast::SequenceReader& reader,
+                           std::size_t stride,
+                           double period_s,
+                           pcl::rast::DeskewParams& params,
+                           std::string& note);
+
 } // namespace pcl_rast_tools

@@ -71,6 +71,8 @@ azimuthTimes(const pcl::PointCloud<pcl::PointXYZI>& cloud,
 /// Times are grouped into \a bins equal intervals over their range, each with one
 /// transform: a point is then at most half a bin off in time (512 bins over a 0.1 s
 /// sweep: 0.1 ms, 1 mm at 10 m/s, plus 2.5 mm for a point 50 m away at 0.5 rad/s).
+/// Points with a non-finite time are left as they are (non-finite points stay
+/// non-finite); a non-finite twist leaves the whole cloud as it is.
 /// \throws std::invalid_argument when the sizes differ or bins < 1.
 pcl::PointCloud<pcl::PointXYZI>::Ptr
 deskewCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud,
