@@ -7,7 +7,8 @@
 /// LiDAR poses with the KITTI axis change, unless `-traj-frame lidar`; a TUM file
 /// (`t x y z qx qy qz qw`) holds body (LiDAR) poses and its timestamps are kept.
 /// `-raw-sweep` writes raw (motion-distorted) sweeps instead of instantaneous scans;
-/// the spin convention is documented in pcl/slam/lidar_simulator.h.
+/// the spin convention is documented in pcl/slam/lidar_simulator.h. `-imperfections`
+/// adds the sensor imperfections of pcl::rast::SensorImperfectionParams.
 
 #include "cli.h"
 
@@ -33,6 +34,7 @@ run(int argc, char** argv)
   double rate_hz = path_params.rate_hz, speed_mps = path_params.speed_mps;
   bool moving_cars = params.world.moving_cars;
   bool raw_sweep = params.raw_sweep;
+  bool imperfections = params.imperfections;
 
   ArgParser args(
       "pcl_rast_simulate",
@@ -72,6 +74,11 @@ run(int argc, char** argv)
                  "firing time, azimuth +180 deg at t - T/2, 0 at t, -180 deg at "
                  "t + T/2; -format pcd adds a float field time (s since sweep start)",
                  &raw_sweep);
+  args.addSwitch("imperfections",
+                 "sensor imperfections: per-beam calibration error, 0.1 % early "
+                 "outliers, mixed pixels at depth edges, intensity noise (fixed by "
+                 "-seed)",
+                 &imperfections);
   args.addInt("threads", "ray-casting threads (output does not depend on it)", &threads);
   if (!args.parse(argc, argv))
     return kExitOk;
@@ -93,6 +100,7 @@ run(int argc, char** argv)
   params.seed = static_cast<std::uint64_t>(seed);
   params.world.moving_cars = moving_cars;
   params.raw_sweep = raw_sweep;
+  params.imperfections = imperfections;
   params.num_threads = threads;
   params.frame_period_s = 1.0 / rate_hz;
   std::string why;

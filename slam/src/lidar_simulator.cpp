@@ -59,6 +59,26 @@ rayUniforms(std::uint64_t frame_key, std::uint64_t ray, double u[4])
   }
 }
 
+/// Key of the imperfections' own uniforms for frame \a frame: independent of the
+/// clean sensor's (rayUniforms of frameKey), so switching imperfections on leaves the
+/// clean draws (dropouts, noise) of every ray as they were.
+std::uint64_t
+imperfectionKey(std::uint64_t seed, std::uint64_t frame)
+{
+  return splitmix64(frameKey(seed, frame) ^ 0x1A9E4FEC7105A1EDULL);
+}
+
+/// Two uniforms in (0, 1) fixed per beam \a beam for the whole sequence: the beam's
+/// calibration error depends on the seed only.
+void
+beamUniforms(std::uint64_t seed, std::uint64_t beam, double u[2])
+{
+  const std::uint64_t h = splitmix64(splitmix64(seed ^ 0xCA1BCA1BCA1BCA1BULL) ^
+                                     (beam * 0x9E3779B97F4A7C15ULL));
+  u[0] = (static_cast<double>(h >> 32) + 0.5) * 0x1.0p-32;
+  u[1] = (static_cast<double>(h & 0xFFFFFFFFULL) + 0.5) * 0x1.0p-32;
+}
+
 /// Standard normal quantile of u in (0, 1) from a 4096-entry table of the inverse
 /// CDF (linear between entries, tails clipped at ~3.5 sigma): deterministic and cheap.
 double
@@ -90,6 +110,27 @@ linearBeams(int n, double top_deg, double bottom_deg)
   for (int k = 0; k < n; ++k)
     b[k] = deg(top_deg + (bottom_deg - top_deg) * k / std::max(1, n - 1));
   return b;
+}
+
+/// The range a flawed sensor reads along a ray that hit \a hit, before the beam's
+/// range bias and the gaussian noise (SensorImperfectionParams): a mixed pixel
+/// interpolated towards \a next (the same beam's hit in the next column) when the two
+/// lie across a depth edge, and a spurious early return in [min_range_m, hit range]
+/// that replaces either. \a v are the ray's imperfection uniforms.
+double
+imperfectRange(const RayHit& hit,
+               const RayHit& next,
+               const double v[4],
+               const SensorImperfectionParams& p,
+               double min_range_m)
+{
+  double range = hit.range_m;
+  if (next.range_m > 0.0 && std::abs(next.range_m - hit.range_m) > p.mixed_pixel_jump_m &&
+      v[2] < p.mixed_pixel_probability)
+    range = hit.range_m + v[3] * (next.range_m - hit.range_m);
+  if (v[0] < p.outlier_rate && hit.range_m > min_range_m)
+    range = min_range_m + v[1] * (hit.range_m - min_range_m);
+  return range;
 }
 
 // ---- generated paths ----
@@ -404,6 +445,34 @@ generatePath(const PathParams& params)
 // ---- simulator ----
 
 bool
+SensorImperfectionParams::isValid(std::string* why) const
+{
+  auto fail = [why](const std::string& msg) {
+    if (why)
+      *why = "SensorImperfectionParams: " + msg;
+    return false;
+  };
+  if (!(elevation_bias_std_rad >= 0.0 && elevation_bias_std_rad <= 0.01))
+    return fail("elevation_bias_std_rad must be in [0, 0.01], got " +
+                std::to_string(elevation_bias_std_rad));
+  if (!(range_bias_std_m >= 0.0 && range_bias_std_m <= 1.0))
+    return fail("range_bias_std_m must be in [0, 1], got " +
+                std::to_string(range_bias_std_m));
+  if (!(outlier_rate >= 0.0 && outlier_rate <= 1.0))
+    return fail("outlier_rate must be in [0, 1], got " + std::to_string(outlier_rate));
+  if (!(mixed_pixel_probability >= 0.0 && mixed_pixel_probability <= 1.0))
+    return fail("mixed_pixel_probability must be in [0, 1], got " +
+                std::to_string(mixed_pixel_probability));
+  if (!(mixed_pixel_jump_m > 0.0 && mixed_pixel_jump_m < 1e3))
+    return fail("mixed_pixel_jump_m must be in (0, 1000), got " +
+                std::to_string(mixed_pixel_jump_m));
+  if (!(intensity_noise_std >= 0.0 && intensity_noise_std <= 1.0))
+    return fail("intensity_noise_std must be in [0, 1], got " +
+                std::to_string(intensity_noise_std));
+  return true;
+}
+
+bool
 LidarSimulatorParams::isValid(std::string* why) const
 {
   auto fail = [why](const std::string& msg) {
@@ -412,6 +481,8 @@ LidarSimulatorParams::isValid(std::string* why) const
     return false;
   };
   if (!world.isValid(why))
+    return false;
+  if (!imperfection_params.isValid(why))
     return false;
   if (!(frame_period_s > 0.0 && frame_period_s < 1e3))
     return fail("frame_period_s must be in (0, 1000)");
@@ -461,6 +532,28 @@ LidarSimulator::LidarSimulator(const LidarSimulatorParams& params,
       const double el = spec_.beam_elevations_rad[b];
       ray_dirs_sensor_.emplace_back(
           std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
+    }
+  }
+  if (params.imperfections) {
+    // Per-beam calibration error, fixed for the sequence: rays are cast along the
+    // biased elevation, points are placed along the nominal one.
+    const SensorImperfectionParams& ip = params.imperfection_params;
+    std::vector<double> elevation_bias_rad(static_cast<std::size_t>(beams));
+    beam_range_bias_m_.resize(static_cast<std::size_t>(beams));
+    for (int b = 0; b < beams; ++b) {
+      double u[2];
+      beamUniforms(params.seed, static_cast<std::uint64_t>(b), u);
+      elevation_bias_rad[b] = ip.elevation_bias_std_rad * gaussianFromUniform(u[0]);
+      beam_range_bias_m_[b] = ip.range_bias_std_m * gaussianFromUniform(u[1]);
+    }
+    ray_dirs_cast_.reserve(spec_.raysPerFrame());
+    for (int a = 0; a < spec_.azimuth_steps; ++a) {
+      const double az = 2 * kPi * a / spec_.azimuth_steps;
+      for (int b = 0; b < beams; ++b) {
+        const double el = spec_.beam_elevations_rad[b] + elevation_bias_rad[b];
+        ray_dirs_cast_.emplace_back(
+            std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
+      }
     }
   }
   world_ = std::make_shared<SimulatedWorld>(
@@ -560,19 +653,21 @@ LidarSimulator::simulateFrame(std::size_t i,
   // pose for a raw sweep; moving cars at the frame's time either way), split into
   // contiguous chunks (threads only change speed).
   std::vector<RayHit> hits(n);
+  const std::vector<Eigen::Vector3d>& cast_dirs =
+      ray_dirs_cast_.empty() ? ray_dirs_sensor_ : ray_dirs_cast_;
   auto castRange = [&](std::size_t lo, std::size_t hi) {
     std::vector<Eigen::Vector3d> dirs(hi - lo);
     std::vector<RayHit> part;
     std::vector<RayHit>& out = lo == 0 && hi == n ? hits : part;
     if (!raw) {
       for (std::size_t k = lo; k < hi; ++k)
-        dirs[k - lo] = R * ray_dirs_sensor_[k];
+        dirs[k - lo] = R * cast_dirs[k];
       world_->castRays(origin, dirs, spec_.max_range_m, time_s, out);
     } else {
       std::vector<Eigen::Vector3d> origins(hi - lo);
       for (std::size_t k = lo; k < hi; ++k) {
         const Pose3d& T = T_world_column[k / beams];
-        dirs[k - lo] = T.linear() * ray_dirs_sensor_[k];
+        dirs[k - lo] = T.linear() * cast_dirs[k];
         origins[k - lo] = T.translation();
       }
       world_->castRays(origins, dirs, spec_.max_range_m, time_s, out);
@@ -593,7 +688,9 @@ LidarSimulator::simulateFrame(std::size_t i,
 
   // 2. Sensor effects per ray from a hash of (seed, frame, ray): range noise,
   // dropouts (more at long range and grazing incidence), intensity from the
-  // material's reflectivity, the incidence angle and the range.
+  // material's reflectivity, the incidence angle and the range. With imperfections
+  // also mixed pixels, early outliers, the beam's range bias (imperfectRange, own
+  // uniforms) and multiplicative intensity noise (the clean draws' spare u[3]).
   cloud.clear();
   cloud.reserve(n);
   if (point_times_s) {
@@ -602,6 +699,9 @@ LidarSimulator::simulateFrame(std::size_t i,
   }
   const double max_r = spec_.max_range_m;
   const std::uint64_t frame_key = frameKey(params_.seed, i);
+  const bool imperfect = params_.imperfections;
+  const SensorImperfectionParams& ip = params_.imperfection_params;
+  const std::uint64_t imperfection_key = imperfectionKey(params_.seed, i);
   // A raw sweep comes out in firing order, as a driver writes it (the reader checks
   // that a time field is in order); an instantaneous scan column by column from
   // azimuth 0, as before.
@@ -624,12 +724,22 @@ LidarSimulator::simulateFrame(std::size_t i,
     if (u[0] < p_drop)
       continue;
     const double gauss = gaussianFromUniform(u[1]);
-    const double range = h.range_m + spec_.range_noise_std_m * gauss;
+    double range = h.range_m + spec_.range_noise_std_m * gauss;
+    if (imperfect) {
+      double v[4];
+      rayUniforms(imperfection_key, k, v);
+      const std::size_t next =
+          (k / beams + 1) % static_cast<std::size_t>(steps) * beams + k % beams;
+      range = imperfectRange(h, hits[next], v, ip, spec_.min_range_m) +
+              beam_range_bias_m_[k % beams] + spec_.range_noise_std_m * gauss;
+    }
     if (range < spec_.min_range_m || range > max_r)
       continue;
-    const double intensity =
+    double intensity =
         h.reflectivity * (0.3 + 0.7 * h.cos_incidence) * (1.0 - 0.3 * rel) +
         0.03 * (u[2] - 0.5);
+    if (imperfect)
+      intensity *= 1.0 + ip.intensity_noise_std * gaussianFromUniform(u[3]);
     const Eigen::Vector3d p = range * ray_dirs_sensor_[k];
     pcl::PointXYZI pt;
     pt.x = static_cast<float>(p.x());

@@ -2,7 +2,8 @@
 /// \brief Tests of the LiDAR sequence simulator: parameters, generated paths,
 /// determinism, frame independence, sensor plausibility, a clear road corridor,
 /// world consistency between frames, sequence files and KITTI-driven simulation, and
-/// raw sweeps (firing times, smear along the motion, the PCD `time` field).
+/// raw sweeps (firing times, smear along the motion, the PCD `time` field) and sensor
+/// imperfections (off unchanged, per-beam bias, outliers, mixed pixels, intensity).
 
 #include "test_data.h"
 
@@ -10,6 +11,7 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <numeric>
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/kdtree/kdtree_flann.h>
@@ -541,6 +543,26 @@ expectedTau(const pcl::PointXYZI& p, double period_s)
   return -std::atan2(p.y, p.x) / (2 * M_PI) * period_s;
 }
 
+/// \a cloud is frame 4 of the clean HDL-64 (seed 7, straight path of 10 frames) as it
+/// was before raw sweeps and imperfections existed (count and coordinate sums; any
+/// moved point or changed dropout shows).
+void
+expectCleanFrame4(const Cloud& cloud)
+{
+  double sx = 0, sy = 0, sz = 0, si = 0;
+  for (const auto& p : cloud) {
+    sx += p.x;
+    sy += p.y;
+    sz += p.z;
+    si += p.intensity;
+  }
+  EXPECT_EQ(cloud.size(), 125361u);
+  EXPECT_NEAR(sx, 103585.14677, 1e-4);
+  EXPECT_NEAR(sy, -129776.01174, 1e-4);
+  EXPECT_NEAR(sz, -157374.75515, 1e-4);
+  EXPECT_NEAR(si, 25667.62971, 1e-4);
+}
+
 TEST(LidarSimulator, RawSweepOffIsUnchanged)
 {
   // The instantaneous scan of this frame as it was before raw sweeps existed (count and
@@ -560,18 +582,7 @@ TEST(LidarSimulator, RawSweepOffIsUnchanged)
   EXPECT_TRUE(sameCloud(a, c));
   EXPECT_EQ(times.size(), c.size());
 
-  double sx = 0, sy = 0, sz = 0, si = 0;
-  for (const auto& p : a) {
-    sx += p.x;
-    sy += p.y;
-    sz += p.z;
-    si += p.intensity;
-  }
-  EXPECT_EQ(a.size(), 125361u);
-  EXPECT_NEAR(sx, 103585.14677, 1e-4);
-  EXPECT_NEAR(sy, -129776.01174, 1e-4);
-  EXPECT_NEAR(sz, -157374.75515, 1e-4);
-  EXPECT_NEAR(si, 25667.62971, 1e-4);
+  expectCleanFrame4(a);
 
   // A raw sweep of the same frame is a different cloud.
   LidarSimulatorParams on = makeParams(SensorModel::kHdl64, 7);
@@ -844,6 +855,352 @@ TEST(LidarSimulator, WriteSequenceRawSweepPcdTime)
   sim.writeSequence(dir.string(), pcl::rast::ScanFormat::kBin, 4, 4);
   EXPECT_EQ(std::filesystem::file_size(dir / "velodyne" / "000000.bin"),
             cloud.size() * 16u);
+}
+
+// ---- sensor imperfections ----
+
+/// Imperfection magnitudes with every effect off: tests switch on the one they check,
+/// so each imperfect ray can be compared with the same ray of the clean sensor.
+pcl::rast::SensorImperfectionParams
+noImperfection()
+{
+  pcl::rast::SensorImperfectionParams p;
+  p.elevation_bias_std_rad = 0.0;
+  p.range_bias_std_m = 0.0;
+  p.outlier_rate = 0.0;
+  p.mixed_pixel_probability = 0.0;
+  p.intensity_noise_std = 0.0;
+  return p;
+}
+
+LidarSimulatorParams
+imperfectParams(const pcl::rast::SensorImperfectionParams& ip)
+{
+  LidarSimulatorParams p = makeParams(SensorModel::kHdl64, 7);
+  p.imperfections = true;
+  p.imperfection_params = ip;
+  return p;
+}
+
+struct RayReturns;
+RayReturns byRay(const Cloud& cloud, const pcl::rast::SensorSpec& spec);
+
+/// The clean HDL-64 (seed 7, straight path) next to the same sensor with the
+/// imperfections \a ip, to compare the two ray by ray.
+class CleanAndFlawed
+{
+public:
+  explicit CleanAndFlawed(const pcl::rast::SensorImperfectionParams& ip)
+      : path_(makePath(PathType::kStraight, 10)),
+        clean_(makeParams(SensorModel::kHdl64, 7), path_),
+        flawed_(imperfectParams(ip), path_)
+  {}
+  /// Frame \a i of both sensors, per ray.
+  void frame(std::size_t i, RayReturns& clean, RayReturns& flawed) const;
+  const LidarSimulator& clean() const { return clean_; }
+  const pcl::rast::SensorSpec& spec() const { return clean_.sensorSpec(); }
+  std::size_t beams() const { return spec().beam_elevations_rad.size(); }
+
+private:
+  PoseVector path_;
+  LidarSimulator clean_, flawed_;
+};
+
+/// Per ray of the frame (column-major, as the simulator casts them) the range and
+/// intensity of its return in \a cloud, range -1 without one. A point lies along its
+/// ray's nominal direction (imperfections included), so its azimuth gives the column
+/// and its elevation the beam.
+struct RayReturns
+{
+  std::vector<double> range_m;
+  std::vector<float> intensity;
+};
+
+RayReturns
+byRay(const Cloud& cloud, const pcl::rast::SensorSpec& spec)
+{
+  const std::size_t beams = spec.beam_elevations_rad.size();
+  const int steps = spec.azimuth_steps;
+  RayReturns r;
+  r.range_m.assign(spec.raysPerFrame(), -1.0);
+  r.intensity.assign(spec.raysPerFrame(), 0.0f);
+  for (const auto& p : cloud) {
+    double az = std::atan2(p.y, p.x);
+    if (az < 0)
+      az += 2 * M_PI;
+    const std::size_t column =
+        static_cast<std::size_t>(std::lround(az / (2 * M_PI) * steps)) % steps;
+    const double el = std::atan2(p.z, std::hypot(p.x, p.y));
+    std::size_t beam = 0;
+    for (std::size_t b = 1; b < beams; ++b)
+      if (std::abs(spec.beam_elevations_rad[b] - el) <
+          std::abs(spec.beam_elevations_rad[beam] - el))
+        beam = b;
+    const std::size_t k = column * beams + beam;
+    EXPECT_LT(r.range_m[k], 0.0) << "two points on ray " << k;
+    r.range_m[k] = p.getVector3fMap().norm();
+    r.intensity[k] = p.intensity;
+  }
+  return r;
+}
+
+void
+CleanAndFlawed::frame(std::size_t i, RayReturns& clean, RayReturns& flawed) const
+{
+  Cloud c, f;
+  clean_.simulateFrame(i, c);
+  flawed_.simulateFrame(i, f);
+  clean = byRay(c, spec());
+  flawed = byRay(f, spec());
+}
+
+double
+mean(const std::vector<double>& v)
+{
+  return std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(v.size());
+}
+
+double
+stddev(const std::vector<double>& v)
+{
+  const double m = mean(v);
+  double s = 0.0;
+  for (double x : v)
+    s += (x - m) * (x - m);
+  return std::sqrt(s / static_cast<double>(v.size()));
+}
+
+TEST(LidarSimulator, ImperfectionsOffIsUnchanged)
+{
+  // Off (the default, or explicitly false even with other magnitudes) is the clean
+  // sensor as pinned in RawSweepOffIsUnchanged; on changes the cloud.
+  const PoseVector path = makePath(PathType::kStraight, 10);
+  LidarSimulator defaults(makeParams(SensorModel::kHdl64, 7), path);
+  LidarSimulatorParams off = makeParams(SensorModel::kHdl64, 7);
+  off.imperfections = false;
+  off.imperfection_params.outlier_rate = 0.5;
+  off.imperfection_params.range_bias_std_m = 0.5;
+  LidarSimulator explicit_off(off, path);
+  Cloud a, b;
+  defaults.simulateFrame(4, a);
+  explicit_off.simulateFrame(4, b);
+  EXPECT_TRUE(sameCloud(a, b));
+  expectCleanFrame4(b);
+
+  LidarSimulator on(imperfectParams({}), path);
+  Cloud c, c_again;
+  on.simulateFrame(4, c);
+  EXPECT_FALSE(sameCloud(a, c));
+  LidarSimulatorParams threaded = imperfectParams({});
+  threaded.num_threads = 3;
+  LidarSimulator(threaded, path).simulateFrame(4, c_again);
+  EXPECT_TRUE(sameCloud(c, c_again)); // deterministic, independent of threads
+}
+
+TEST(LidarSimulator, ImperfectionParamsValidation)
+{
+  std::string why;
+  EXPECT_TRUE(pcl::rast::SensorImperfectionParams().isValid(&why)) << why;
+  LidarSimulatorParams p = imperfectParams({});
+  p.imperfection_params.outlier_rate = 1.5;
+  EXPECT_FALSE(p.isValid(&why));
+  EXPECT_NE(why.find("outlier_rate"), std::string::npos) << why;
+  EXPECT_NE(why.find("1.5"), std::string::npos) << why;
+  p = imperfectParams({});
+  p.imperfection_params.mixed_pixel_jump_m = 0.0;
+  EXPECT_FALSE(p.isValid(&why));
+  EXPECT_NE(why.find("mixed_pixel_jump_m"), std::string::npos) << why;
+  p.imperfection_params.mixed_pixel_jump_m = 1.0;
+  p.imperfection_params.intensity_noise_std = -0.1;
+  EXPECT_THROW(LidarSimulator(p, makePath(PathType::kStraight, 3)),
+               std::invalid_argument);
+}
+
+TEST(LidarSimulator, ImperfectionsRangeBiasFixedPerBeam)
+{
+  // Only the per-beam range bias: every return of beam b reads the clean range plus
+  // the same c_b in frames 2 and 7 (the clean noise and dropouts are unchanged), and
+  // the c_b spread like N(0, 1.5 cm).
+  pcl::rast::SensorImperfectionParams ip = noImperfection();
+  ip.range_bias_std_m = 0.015;
+  const CleanAndFlawed sims(ip);
+  const std::size_t beams = sims.beams();
+  std::vector<double> bias(beams, 0.0);
+  std::vector<std::size_t> seen(beams, 0);
+  for (std::size_t frame : {2u, 7u}) {
+    RayReturns rc, rb;
+    sims.frame(frame, rc, rb);
+    for (std::size_t k = 0; k < rc.range_m.size(); ++k) {
+      if (rc.range_m[k] < 0 || rb.range_m[k] < 0)
+        continue;
+      const std::size_t beam = k % beams;
+      const double d = rb.range_m[k] - rc.range_m[k];
+      if (seen[beam]++ == 0)
+        bias[beam] = d;
+      ASSERT_NEAR(d, bias[beam], 1e-3) << "frame " << frame << " ray " << k;
+    }
+  }
+  for (std::size_t b = 0; b < beams; ++b)
+    EXPECT_GT(seen[b], 500u) << "beam " << b;
+  EXPECT_GT(stddev(bias), 0.008);
+  EXPECT_LT(stddev(bias), 0.025);
+  EXPECT_LT(std::abs(mean(bias)), 0.008);
+}
+
+TEST(LidarSimulator, ImperfectionsElevationBiasFixedPerBeam)
+{
+  // Only the per-beam elevation bias: a lower beam fired at e_b + d_b hits the ground
+  // at range h / sin(-(e_b + d_b)) but the point is placed along e_b, so its ground
+  // ranges are scaled by a factor of the beam (~ 1 + d_b / tan|e_b|, 0.1-0.5 %), the
+  // same in frames 2 and 7 on this gentle terrain, different between beams.
+  pcl::rast::SensorImperfectionParams ip = noImperfection();
+  ip.elevation_bias_std_rad = 0.05 * M_PI / 180.0;
+  const CleanAndFlawed sims(ip);
+  const std::size_t beams = sims.beams();
+  std::vector<std::vector<double>> scale(2, std::vector<double>(beams, 0.0));
+  const std::size_t frames[2] = {2, 7};
+  for (int f = 0; f < 2; ++f) {
+    RayReturns rc, rb;
+    sims.frame(frames[f], rc, rb);
+    for (std::size_t beam = 40; beam < beams; ++beam) { // -12 to -24.8 deg: ground
+      std::vector<double> ratios;
+      for (std::size_t k = beam; k < rc.range_m.size(); k += beams)
+        if (rc.range_m[k] > 0 && rb.range_m[k] > 0 && rc.range_m[k] < 12.0)
+          ratios.push_back(rb.range_m[k] / rc.range_m[k]);
+      ASSERT_GT(ratios.size(), 500u) << "beam " << beam;
+      std::nth_element(ratios.begin(), ratios.begin() + ratios.size() / 2, ratios.end());
+      scale[f][beam] = ratios[ratios.size() / 2] - 1.0;
+    }
+  }
+  std::vector<double> lower(scale[0].begin() + 40, scale[0].end());
+  EXPECT_GT(stddev(lower), 5e-4); // beams really are miscalibrated
+  // The same factor within 15 % (the slope under the car changes a little between the
+  // frames); a bias drawn afresh per frame would agree only by chance.
+  for (std::size_t beam = 40; beam < beams; ++beam)
+    EXPECT_NEAR(scale[1][beam], scale[0][beam], 0.15 * std::abs(scale[0][beam]) + 1e-4)
+        << "beam " << beam;
+}
+
+TEST(LidarSimulator, ImperfectionsOutlierShare)
+{
+  // Only outliers: about 0.1 % of the returns change, each to an early range in
+  // [min_range, clean range] (or below min_range after the noise: then it is gone).
+  pcl::rast::SensorImperfectionParams ip = noImperfection();
+  ip.outlier_rate = 0.001;
+  const CleanAndFlawed sims(ip);
+  const auto& spec = sims.spec();
+  std::size_t returns = 0, changed = 0;
+  for (std::size_t frame : {1u, 4u, 8u}) {
+    RayReturns rc, ro;
+    sims.frame(frame, rc, ro);
+    for (std::size_t k = 0; k < rc.range_m.size(); ++k) {
+      if (rc.range_m[k] < 0)
+        continue;
+      ++returns;
+      if (std::abs(ro.range_m[k] - rc.range_m[k]) < 1e-3)
+        continue;
+      ++changed;
+      if (ro.range_m[k] >= 0) {
+        EXPECT_LT(ro.range_m[k], rc.range_m[k] + 0.1) << "not early, ray " << k;
+        EXPECT_GE(ro.range_m[k], spec.min_range_m - 1e-3);
+      }
+    }
+  }
+  ASSERT_GT(returns, 300000u);
+  const double share = static_cast<double>(changed) / static_cast<double>(returns);
+  EXPECT_GT(share, 0.0008) << changed << " of " << returns;
+  EXPECT_LT(share, 0.0012) << changed << " of " << returns;
+}
+
+TEST(LidarSimulator, ImperfectionsMixedPixelsOnlyAtDepthEdges)
+{
+  // Only mixed pixels: a return changes only where the same beam's ray in the next
+  // column hits more than 1 m nearer or farther (edges from the true hits, cast here),
+  // it lies between the two ranges, and about 30 % of the edge returns change.
+  const std::size_t frame = 4;
+  pcl::rast::SensorImperfectionParams ip = noImperfection();
+  ip.mixed_pixel_probability = 0.3;
+  const CleanAndFlawed sims(ip);
+  const LidarSimulator& clean = sims.clean();
+  const auto& spec = sims.spec();
+  const std::size_t beams = sims.beams();
+  const std::size_t steps = static_cast<std::size_t>(spec.azimuth_steps);
+
+  const pcl::rast::Pose3d T = clean.sensorPose(frame);
+  std::vector<Eigen::Vector3d> dirs;
+  for (std::size_t a = 0; a < steps; ++a) {
+    const double az = 2 * M_PI * a / spec.azimuth_steps;
+    for (std::size_t b = 0; b < beams; ++b) {
+      const double el = spec.beam_elevations_rad[b];
+      dirs.push_back(T.linear() * Eigen::Vector3d(std::cos(el) * std::cos(az),
+                                                  std::cos(el) * std::sin(az),
+                                                  std::sin(el)));
+    }
+  }
+  std::vector<pcl::rast::RayHit> hits;
+  clean.world().castRays(
+      T.translation(), dirs, spec.max_range_m, clean.timestamp(frame), hits);
+
+  RayReturns rc, rm;
+  sims.frame(frame, rc, rm);
+  std::size_t edges = 0, edges_changed = 0, changed = 0;
+  for (std::size_t k = 0; k < rc.range_m.size(); ++k) {
+    if (rc.range_m[k] < 0 || rm.range_m[k] < 0)
+      continue;
+    const pcl::rast::RayHit& h = hits[k];
+    const pcl::rast::RayHit& next = hits[((k / beams + 1) % steps) * beams + k % beams];
+    const bool edge = next.range_m > 0 && std::abs(next.range_m - h.range_m) > 1.0;
+    const bool moved = std::abs(rm.range_m[k] - rc.range_m[k]) > 1e-3;
+    edges += edge;
+    changed += moved;
+    if (!moved)
+      continue;
+    ASSERT_TRUE(edge) << "mixed pixel away from a depth edge, ray " << k;
+    ++edges_changed;
+    const double noise = 4 * spec.range_noise_std_m;
+    EXPECT_GT(rm.range_m[k], std::min(h.range_m, next.range_m) - noise) << k;
+    EXPECT_LT(rm.range_m[k], std::max(h.range_m, next.range_m) + noise) << k;
+  }
+  EXPECT_GT(changed, 300u);
+  const double share = static_cast<double>(edges_changed) / static_cast<double>(edges);
+  EXPECT_GT(share, 0.26) << edges_changed << " of " << edges;
+  EXPECT_LT(share, 0.34) << edges_changed << " of " << edges;
+}
+
+TEST(LidarSimulator, ImperfectionsIntensityNoise)
+{
+  // All imperfections (defaults): the mean intensity stays within 2 % of the clean
+  // sensor's, its spread grows; per ray (intensity noise alone) the ratio to the clean
+  // intensity spreads like N(1, 0.1).
+  const PoseVector path = makePath(PathType::kStraight, 10);
+  const std::size_t frame = 4;
+  LidarSimulator clean(makeParams(SensorModel::kHdl64, 7), path);
+  LidarSimulator flawed(imperfectParams({}), path);
+  Cloud c, f;
+  clean.simulateFrame(frame, c);
+  flawed.simulateFrame(frame, f);
+  std::vector<double> ic, in;
+  for (const auto& p : c)
+    ic.push_back(p.intensity);
+  for (const auto& p : f)
+    in.push_back(p.intensity);
+  EXPECT_NEAR(mean(in), mean(ic), 0.02 * mean(ic));
+  EXPECT_GT(stddev(in), 1.01 * stddev(ic));
+
+  pcl::rast::SensorImperfectionParams ip = noImperfection();
+  ip.intensity_noise_std = 0.1;
+  LidarSimulator only(imperfectParams(ip), path);
+  Cloud o;
+  only.simulateFrame(frame, o);
+  const RayReturns rc = byRay(c, clean.sensorSpec()), ro = byRay(o, clean.sensorSpec());
+  std::vector<double> ratio;
+  for (std::size_t k = 0; k < rc.range_m.size(); ++k)
+    if (rc.range_m[k] > 0 && ro.range_m[k] > 0 && rc.intensity[k] > 0.05f &&
+        rc.intensity[k] < 0.6f) // away from the clamps
+      ratio.push_back(ro.intensity[k] / rc.intensity[k]);
+  ASSERT_GT(ratio.size(), 10000u);
+  EXPECT_NEAR(mean(ratio), 1.0, 0.005);
+  EXPECT_NEAR(stddev(ratio), 0.1, 0.01);
 }
 
 // ---- KITTI ground truth as the trajectory ----

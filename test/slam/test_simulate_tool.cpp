@@ -1,6 +1,7 @@
 /// \file test_simulate_tool.cpp
 /// \brief The command-line contract of pcl_rast_simulate: files written, first pose
-/// identity, frame selection, formats, raw sweeps, exit codes on bad arguments.
+/// identity, frame selection, formats, raw sweeps, imperfections, exit codes on bad
+/// arguments.
 
 #include "test_data.h"
 
@@ -126,6 +127,28 @@ TEST_F(SimulateTool, BadArgumentsExitOne)
   EXPECT_EQ(runSimulate("-h", log_), 0);
   EXPECT_EQ(runSimulate("-traj '" + (dir_ / "missing.txt").string() + "'" + o, log_), 2);
   EXPECT_FALSE(fs::exists(dir_ / "seq" / "poses.txt"));
+}
+
+TEST_F(SimulateTool, ImperfectionsSwitch)
+{
+  // Listed by -h (an unknown flag would exit 1 before the help).
+  ASSERT_EQ(runSimulate("-imperfections -h", log_), 0);
+  std::ifstream help(log_);
+  const std::string usage((std::istreambuf_iterator<char>(help)), {});
+  EXPECT_NE(usage.find("-imperfections"), std::string::npos) << usage;
+
+  // It changes the scans, deterministically for the seed.
+  const std::string base = "-path straight -frames 2 -sensor vlp16 -seed 5 -output ";
+  ASSERT_EQ(runSimulate(base + out("clean"), log_), 0);
+  ASSERT_EQ(runSimulate(base + out("a") + " -imperfections", log_), 0);
+  ASSERT_EQ(runSimulate(base + out("b") + " -imperfections", log_), 0);
+  auto bytes = [&](const std::string& name) {
+    std::ifstream in(dir_ / name / "velodyne" / "000001.bin", std::ios::binary);
+    return std::string((std::istreambuf_iterator<char>(in)), {});
+  };
+  EXPECT_GT(bytes("clean").size(), 0u);
+  EXPECT_NE(bytes("clean"), bytes("a"));
+  EXPECT_EQ(bytes("a"), bytes("b"));
 }
 
 TEST_F(SimulateTool, RawSweepSwitch)

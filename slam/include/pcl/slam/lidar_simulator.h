@@ -11,6 +11,10 @@
 /// intensity from a counter-based hash of (seed, frame, ray) so frame i never depends on
 /// other frames. \ingroup slam
 ///
+/// With LidarSimulatorParams::imperfections the sensor is as flawed as a real one:
+/// per-beam calibration error, spurious early returns, mixed pixels at depth edges and
+/// intensity noise (SensorImperfectionParams), all from the seed.
+///
 /// Scans are instantaneous by default (every column cast from the frame's pose).
 /// With LidarSimulatorParams::raw_sweep they are raw sweeps of a spinning sensor, which
 /// moves while it turns, as motion compensation (deskewing) sees them.
@@ -209,6 +213,36 @@ private:
   std::unique_ptr<Impl> impl_;
 };
 
+/// \brief Magnitudes of the sensor imperfections (used only with
+/// LidarSimulatorParams::imperfections). The defaults model a street-worn spinning
+/// LiDAR; setting one to 0 turns that effect off, which isolates the others in tests.
+///
+/// - Per-beam calibration error, fixed for the whole sequence (drawn from the seed):
+///   beam b is fired at elevation e_b + d_b, d_b ~ N(0, elevation_bias_std_rad), and
+///   its ranges read r + c_b, c_b ~ N(0, range_bias_std_m). The sensor believes the
+///   nominal elevation e_b, so the point lands at the nominal direction times the range
+///   measured along the biased ray.
+/// - Range outliers: a share outlier_rate of the returns gets a uniform range in
+///   [min_range_m, hit range] (spurious early returns: dust, rain, exhaust).
+/// - Mixed pixels: when the same beam's ray in the next column hits something more than
+///   mixed_pixel_jump_m nearer or farther, with mixed_pixel_probability the return
+///   reads a uniform interpolation of the two ranges (a point floating between
+///   foreground and background). Uses the hits already cast: no extra rays.
+/// - Intensity noise: each intensity times N(1, intensity_noise_std), clamped to
+///   [0, 1].
+struct SensorImperfectionParams
+{
+  double elevation_bias_std_rad = 0.05 * 3.14159265358979323846 / 180.0; ///< 0.05 deg
+  double range_bias_std_m = 0.015;      ///< per-beam range offset, 1 sigma
+  double outlier_rate = 0.001;          ///< share of returns with a spurious early range
+  double mixed_pixel_probability = 0.3; ///< chance a return at a depth edge is mixed
+  double mixed_pixel_jump_m = 1.0;      ///< range jump to the next column that is an edge
+  double intensity_noise_std = 0.1;     ///< multiplicative intensity noise, 1 sigma
+
+  /// \brief True when every value is usable; otherwise \a why says which is not.
+  bool isValid(std::string* why = nullptr) const;
+};
+
 /// \brief Parameters of the simulator.
 struct LidarSimulatorParams
 {
@@ -225,6 +259,11 @@ struct LidarSimulatorParams
   /// Moving cars (WorldParams::moving_cars) stay where they are at the frame's
   /// timestamp for the whole sweep. false: bit-identical to the instantaneous scans.
   bool raw_sweep = false;
+  /// Sensor imperfections (per-beam calibration error, range outliers, mixed pixels at
+  /// depth edges, intensity noise; see SensorImperfectionParams), deterministic for the
+  /// seed, at no extra ray casts. false: bit-identical to the clean sensor.
+  bool imperfections = false;
+  SensorImperfectionParams imperfection_params; ///< magnitudes, when imperfections
 
   bool isValid(std::string* why = nullptr) const;
 };
@@ -321,6 +360,10 @@ private:
   PoseVector T_world_body_;
   std::vector<double> timestamps_s_;
   std::vector<Eigen::Vector3d> ray_dirs_sensor_; ///< column-major: azimuth, then beam
+  /// Directions the rays are cast along: ray_dirs_sensor_ with each beam's elevation
+  /// bias (imperfections), else empty (cast along ray_dirs_sensor_).
+  std::vector<Eigen::Vector3d> ray_dirs_cast_;
+  std::vector<double> beam_range_bias_m_; ///< per beam (imperfections), else empty
   std::shared_ptr<const SimulatedWorld> world_;
 };
 
