@@ -9,7 +9,8 @@
 #                            [-- odometry flags]
 #
 #   Realistic by default: raw sweeps (each column at its firing time) written as PCD
-#   with a per-point `time` field, moving cars, and reporting seed 101 (seeds below 100
+#   with a per-point `time` field, moving cars, sensor imperfections (per-beam biases,
+#   outliers, mixed pixels, intensity noise), and reporting seed 101 (seeds below 100
 #   are for tuning: never report on them). -c: the clean world instead (instantaneous
 #   scans, no traffic, .bin, seed 1: the figures of earlier sessions). -e 5 takes every
 #   5th scan (2 Hz); -S os0-128 simulates the tilted handheld sensor (and passes -sensor
@@ -57,8 +58,8 @@ if (( clean )); then
   world=(-seed "$seed")
   settings="clean world: instantaneous scans, no traffic, .bin, seed $seed"
 else
-  world=(-seed "$seed" -raw-sweep -moving-cars -format pcd)
-  settings="realistic: raw sweeps (PCD time field), moving cars, seed $seed"
+  world=(-seed "$seed" -raw-sweep -moving-cars -imperfections -format pcd)
+  settings="realistic: raw sweeps (PCD time field), moving cars, sensor imperfections, seed $seed"
   (( seed < 100 )) && settings="$settings (a TUNING seed: do not report)"
 fi
 echo "eval_odometry (simulated): $settings; sensor $sensor; frames $first+$frames every $every;" \
