@@ -65,6 +65,15 @@ angleDeg(const Pose3d& T)
   return Eigen::AngleAxisd(T.rotation()).angle() * 180.0 / M_PI;
 }
 
+/// The dense step's figures of the fit a frame's pose comes from.
+void
+keepDenseStats(const DenseResult& dense, OdometryFrameResult& result)
+{
+  result.dense_correspondences = dense.num_correspondences;
+  result.dense_degenerate_directions = dense.degenerate_directions;
+  result.dense_rmse_m = dense.rmse_m;
+}
+
 /// The motion \a delta scaled by \a ratio (rotation angle and translation), for a
 /// constant-velocity prediction over a different time step.
 Pose3d
@@ -419,6 +428,20 @@ struct Odometry::Impl
         OdometryFrameResult result);
   /// The times to compensate \a input with (params.deskew): the given ones, times from
   /// the azimuth, or none (null). \a storage holds azimuth times.
+  /// Step 5b of track: where the estimated motion differs from the previous frame's (a
+  /// stop, a start, a turn), the dense step's source points are compensated with it and
+  /// refined once more from the estimate. Returns the twist to compensate the whole scan
+  /// with if it is kept (key-frame, young map), when the pass was taken.
+  std::optional<Twist> secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
+                                        const std::vector<float>& times,
+                                        const std::vector<int>& source_indices,
+                                        double dt,
+                                        const Pose3d& T_motion_prior,
+                                        OdometryFrameResult& result);
+  /// Step 5c of track: the scan that started the map was used as it was (no motion
+  /// before it). Once the next frame's motion is known, the local map is rebuilt from
+  /// that scan compensated with it (the key-frame's own stored cloud stays as it was).
+  void rebuildMapFromFirstScan(OdometryFrameResult& result);
   const std::vector<float>* sweepTimes(const pcl::PointCloud<pcl::PointXYZI>& input,
                                        const std::vector<float>& given,
                                        double frame_interval_s,
@@ -696,11 +719,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
         static_cast<std::size_t>(params.dense.max_source_points));
     source = odometry_detail::toPoints(*cloud, source_indices);
   }
-  auto keepDense = [&result](const DenseResult& dense) {
-    result.dense_correspondences = dense.num_correspondences;
-    result.dense_degenerate_directions = dense.degenerate_directions;
-    result.dense_rmse_m = dense.rmse_m;
-  };
+  auto keepDense = [&result](const DenseResult& dense) { keepDenseStats(dense, result); };
   if (features_ok) {
     const int inliers = static_cast<int>(ransac.inlier_indices.size());
     const Pose3d prior_diff = T_world_prior.inverse() * T_world_features;
@@ -849,54 +868,13 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   }
   result.timings.refine_ms = msSince(start);
 
-  // 5b. Second pass of the motion compensation: where the estimated motion differs from
-  //     the previous frame's (a stop, a start, a turn), compensate the dense step's source
-  //     points with it and refine once more from the estimate. The whole scan is
-  //     compensated again only if it is kept (key-frame, young map).
+  // 5b. Second pass of the motion compensation with the estimated motion; 5c. the local
+  //     map rebuilt from the first scan, compensated, once its motion is known.
   std::optional<Twist> xi_final;
-  if (times && num_poses >= 2 && result.refined && !source_indices.empty()) {
-    start = Clock::now();
-    const Pose3d T_motion = T_world_last.inverse() * result.T_world_lidar;
-    const Pose3d change = T_motion_prior.inverse() * T_motion;
-    if (change.translation().norm() > params.deskew.second_pass_translation_m ||
-        angleDeg(change) > params.deskew.second_pass_rotation_deg) {
-      const Twist xi = logSE3(T_motion) / dt;
-      const pcl::PointCloud<pcl::PointXYZI> raw_source(input, source_indices);
-      std::vector<float> source_times(source_indices.size());
-      for (std::size_t k = 0; k < source_indices.size(); ++k)
-        source_times[k] = (*times)[static_cast<std::size_t>(source_indices[k])];
-      const auto again = deskewCloud(raw_source, source_times, xi, params.deskew.bins);
-      std::vector<int> all(again->size());
-      std::iota(all.begin(), all.end(), 0);
-      const DenseResult dense = registerToMap(odometry_detail::toPoints(*again, all), map,
-                                              result.T_world_lidar, params.dense);
-      // Kept when it pairs about as well as the first fit (a compensation that does not
-      // fit the map is not the better one).
-      if (dense.success && dense.num_correspondences >= 0.95 * result.dense_correspondences) {
-        xi_final = xi;
-        keepDense(dense);
-        result.T_world_lidar = dense.T_world_lidar;
-        result.deskew_second_pass = true;
-      }
-    }
-    result.timings.deskew_ms += msSince(start);
-  }
-  // 5c. The scan that started the map was used as it was (no motion before it). Once the
-  //     next frame's motion is known, the local map is rebuilt from that scan
-  //     compensated with it (the key-frame's own stored cloud stays as it was).
-  if (first_scan) {
-    const double dt_first = (result.timestamp_s - t_first) * params.deskew.seconds_per_timestamp;
-    if (result.refined && map_scans == 1 && dt_first > 1e-6 && dt_first < 1.0) {
-      start = Clock::now();
-      const Twist xi = logSE3(T_world_first.inverse() * result.T_world_lidar) / dt_first;
-      map = VoxelPlaneMap(params.dense);
-      map_scans = 0;
-      insertIntoMap(*deskewCloud(*first_scan, first_times, xi, params.deskew.bins), T_world_first);
-      result.timings.deskew_ms += msSince(start);
-    }
-    first_scan.reset();
-    first_times.clear();
-  }
+  if (times && num_poses >= 2 && result.refined && !source_indices.empty())
+    xi_final = secondDeskewPass(input, *times, source_indices, dt, T_motion_prior, result);
+  if (first_scan)
+    rebuildMapFromFirstScan(result);
   auto keptCloud = [&]() -> const pcl::PointCloud<pcl::PointXYZI>& {
     if (xi_final) {
       const auto t0 = Clock::now();
@@ -979,6 +957,59 @@ std::size_t
 Odometry::localMapSize() const
 {
   return impl_->map.size();
+}
+
+std::optional<Twist>
+Odometry::Impl::secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
+                                 const std::vector<float>& times,
+                                 const std::vector<int>& source_indices,
+                                 double dt,
+                                 const Pose3d& T_motion_prior,
+                                 OdometryFrameResult& result)
+{
+  const auto start = Clock::now();
+  const Pose3d T_motion = T_world_last.inverse() * result.T_world_lidar;
+  const Pose3d change = T_motion_prior.inverse() * T_motion;
+  std::optional<Twist> kept;
+  if (change.translation().norm() > params.deskew.second_pass_translation_m ||
+      angleDeg(change) > params.deskew.second_pass_rotation_deg) {
+    const Twist xi = logSE3(T_motion) / dt;
+    const pcl::PointCloud<pcl::PointXYZI> raw_source(input, source_indices);
+    std::vector<float> source_times(source_indices.size());
+    for (std::size_t k = 0; k < source_indices.size(); ++k)
+      source_times[k] = times[static_cast<std::size_t>(source_indices[k])];
+    const auto again = deskewCloud(raw_source, source_times, xi, params.deskew.bins);
+    std::vector<int> all(again->size());
+    std::iota(all.begin(), all.end(), 0);
+    const DenseResult dense = registerToMap(odometry_detail::toPoints(*again, all), map,
+                                            result.T_world_lidar, params.dense);
+    // Kept when it pairs about as well as the first fit (a compensation that does not
+    // fit the map is not the better one).
+    if (dense.success && dense.num_correspondences >= 0.95 * result.dense_correspondences) {
+      kept = xi;
+      keepDenseStats(dense, result);
+      result.T_world_lidar = dense.T_world_lidar;
+      result.deskew_second_pass = true;
+    }
+  }
+  result.timings.deskew_ms += msSince(start);
+  return kept;
+}
+
+void
+Odometry::Impl::rebuildMapFromFirstScan(OdometryFrameResult& result)
+{
+  const double dt_first = (result.timestamp_s - t_first) * params.deskew.seconds_per_timestamp;
+  if (result.refined && map_scans == 1 && dt_first > 1e-6 && dt_first < 1.0) {
+    const auto start = Clock::now();
+    const Twist xi = logSE3(T_world_first.inverse() * result.T_world_lidar) / dt_first;
+    map = VoxelPlaneMap(params.dense);
+    map_scans = 0;
+    insertIntoMap(*deskewCloud(*first_scan, first_times, xi, params.deskew.bins), T_world_first);
+    result.timings.deskew_ms += msSince(start);
+  }
+  first_scan.reset();
+  first_times.clear();
 }
 
 const std::vector<float>*
