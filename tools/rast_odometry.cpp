@@ -188,11 +188,11 @@ run(int argc, char** argv)
   std::vector<double> times;
   std::ostringstream csv;
   csv << "frame,status,ground_ms,raster_ms,orb_ms,match_ms,refine_ms,keyframe_ms,total_ms,"
-         "num_features,num_inliers,keyframe,degraded,deskew_ms,deskew\n";
+         "num_features,num_inliers,keyframe,degraded,deskew_ms,deskew,degenerate_directions\n";
   std::map<std::string, int> status_counts;
   std::vector<double> totals;
   std::size_t num_tracked = 0;
-  std::size_t time_warnings = 0, second_passes = 0;
+  std::size_t time_warnings = 0, second_passes = 0, frames_degenerate = 0;
   std::map<std::string, std::size_t> deskewed; // frames per time source
   ProgressBar bar("Odometry", reader.size());
   std::exception_ptr run_error; // ends the run; the frames before it are written
@@ -228,10 +228,11 @@ run(int argc, char** argv)
         << r.num_features << ',' << r.num_inliers << ',' << (r.keyframe ? 1 : 0) << ','
         << (r.degraded ? 1 : 0) << ',' << fmt(t.deskew_ms) << ','
         << (r.deskew_times.empty() ? "none" : r.deskew_times)
-        << (r.deskew_second_pass ? "+2" : "") << '\n';
+        << (r.deskew_second_pass ? "+2" : "") << ',' << r.dense_degenerate_directions << '\n';
     if (!r.deskew_times.empty())
       ++deskewed[r.deskew_times];
     second_passes += r.deskew_second_pass ? 1 : 0;
+    frames_degenerate += r.dense_degenerate_directions > 0 ? 1 : 0;
     bar.update(i + 1);
   }
   bar.finish();
@@ -257,6 +258,7 @@ run(int argc, char** argv)
   summary["keyframes"] = odometry.numKeyFrames();
   summary["tracking_status"] = status_counts;
   summary["median_frame_ms"] = median;
+  summary["frames_with_degenerate_directions"] = frames_degenerate;
   summary["sensor"] = rast::toString(preset);
   summary["deskew"] = {{"mode", rast::toString(params.deskew.mode)},
                        {"reason", deskew_reason},

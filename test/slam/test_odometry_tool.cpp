@@ -238,7 +238,9 @@ TEST_F(OdometryTool, DeskewModeIsChosenAndReported)
     EXPECT_EQ(deskew["mode"].get<std::string>(), mode);
     const auto timing = readLines(out / "timing.csv");
     ASSERT_EQ(timing.size(), 13u);
-    EXPECT_NE(timing[0].find(",deskew_ms,deskew"), std::string::npos) << timing[0];
+    EXPECT_NE(timing[0].find(",deskew_ms,deskew,degenerate_directions"), std::string::npos)
+        << timing[0];
+    EXPECT_EQ(summary["frames_with_degenerate_directions"].get<int>(), 0); // a street
     // The sweep period from times.txt (0.1 s), not the frame interval.
     EXPECT_NE(deskew["timing"].get<std::string>().find("sweep period 0.100000 s (times.txt)"),
               std::string::npos)
