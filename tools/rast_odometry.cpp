@@ -49,9 +49,8 @@ run(int argc, char** argv)
   using namespace pcl_rast_tools;
   namespace rast = pcl::rast;
   rast::OdometryParams params;
-  std::string input, output, sensor = "auto", deskew = "auto";
-  double deskew_reference_deg = 0.0, deskew_period_s = 0.0;
-  bool deskew_ccw = false;
+  std::string input, output, sensor = "auto";
+  DeskewFlags deskew;
   int first = 0, last = -1, stride = 1;
   bool no_refine = false, no_loose_rematch = false, level = params.ground.level_cloud;
   int max_features = params.orb.max_features;
@@ -68,18 +67,7 @@ run(int argc, char** argv)
   args.addInt("first", "first scan (0-based, sorted order)", &first);
   args.addInt("last", "last scan, inclusive (-1: the last one)", &last);
   args.addInt("stride", "use every K-th scan (5 turns 10 Hz into 2 Hz)", &stride);
-  args.addChoice("deskew",
-                 "motion compensation of raw sweeps (auto: with the scans' own time field, "
-                 "others as they are; on: else times from the azimuth; doc/odometry.md)",
-                 &deskew, deskewChoices());
-  args.addDouble("deskew-reference",
-                 "azimuth times: azimuth [deg] of the column firing at the frame time "
-                 "(0: forward, KITTI; 180: behind)",
-                 &deskew_reference_deg);
-  args.addDouble("deskew-period",
-                 "sweep period [s] (0: from times.txt, else 0.1 s)", &deskew_period_s);
-  args.addSwitch("deskew-ccw", "azimuth times: the head spins counter-clockwise seen from above",
-                 &deskew_ccw);
+  addDeskewFlags(args, deskew);
   args.addChoice("sensor", "parameter preset (auto: guessed from the first scan)", &sensor,
                  sensorChoices());
   args.addSwitch("level", "level the non-ground cloud by the ground normal (tilted sensors)",
@@ -117,12 +105,7 @@ run(int argc, char** argv)
   // Validate everything before any work.
   if (first < 0 || stride < 1 || last < -1 || (last >= 0 && last < first))
     throw std::invalid_argument("need -first >= 0, -stride >= 1, -last -1 or >= -first");
-  if (!(deskew_period_s >= 0.0 && deskew_period_s <= 1.0))
-    throw std::invalid_argument("-deskew-period must be in [0, 1] s, got " +
-                                std::to_string(deskew_period_s));
-  if (!(std::abs(deskew_reference_deg) <= 360.0))
-    throw std::invalid_argument("-deskew-reference must be within +-360 deg, got " +
-                                std::to_string(deskew_reference_deg));
+  checkDeskewFlags(deskew);
   // The flags given win over the sensor preset, which is known only once the input is
   // listed; they are checked before any work all the same.
   const rast::OdometryParams cli_params = params;
@@ -171,13 +154,9 @@ run(int argc, char** argv)
   std::fprintf(stderr, "Sensor preset %s (%s)\n", rast::toString(preset), sensor_reason.c_str());
   params = cli_params;
   rast::applySensorPreset(preset, params);
-  std::string deskew_reason;
-  params.deskew.mode = resolveDeskewMode(deskew, reader, deskew_reason);
-  params.deskew.sweep.reference_azimuth_deg = deskew_reference_deg;
-  params.deskew.sweep.clockwise = !deskew_ccw;
-  std::string deskew_timing;
-  configureDeskewTiming(reader, static_cast<std::size_t>(stride), deskew_period_s, params.deskew,
-                        deskew_timing);
+  std::string deskew_reason, deskew_timing;
+  applyDeskewFlags(deskew, reader, static_cast<std::size_t>(stride), params.deskew, deskew_reason,
+                   deskew_timing);
   std::fprintf(stderr, "Deskew %s (%s; %s)\n", rast::toString(params.deskew.mode),
                deskew_reason.c_str(), deskew_timing.c_str());
   applyFlags(params);
@@ -192,8 +171,8 @@ run(int argc, char** argv)
   std::map<std::string, int> status_counts;
   std::vector<double> totals;
   std::size_t num_tracked = 0;
-  std::size_t time_warnings = 0, second_passes = 0, frames_degenerate = 0;
-  std::map<std::string, std::size_t> deskewed; // frames per time source
+  std::size_t frames_degenerate = 0;
+  DeskewTally tally;
   ProgressBar bar("Odometry", reader.size());
   std::exception_ptr run_error; // ends the run; the frames before it are written
   for (std::size_t i = 0; i < reader.size() && !run_error; ++i) {
@@ -201,7 +180,7 @@ run(int argc, char** argv)
     try {
       fault.check("tracking", i);
       const rast::ScanFrame frame = reader.read(i);
-      if (!frame.time_warning.empty() && time_warnings++ == 0)
+      if (!frame.time_warning.empty() && tally.time_field_warnings++ == 0)
         std::fprintf(stderr, "\npcl_rast_odometry: warning: %s: %s (reported once per run)\n",
                      frame.path.c_str(), frame.time_warning.c_str());
       r = odometry.processFrame(frame.cloud, frame.timestamp_s, i, frame.point_times_s);
@@ -229,9 +208,7 @@ run(int argc, char** argv)
         << (r.degraded ? 1 : 0) << ',' << fmt(t.deskew_ms) << ','
         << (r.deskew_times.empty() ? "none" : r.deskew_times)
         << (r.deskew_second_pass ? "+2" : "") << ',' << r.dense_degenerate_directions << '\n';
-    if (!r.deskew_times.empty())
-      ++deskewed[r.deskew_times];
-    second_passes += r.deskew_second_pass ? 1 : 0;
+    tally.add(r);
     frames_degenerate += r.dense_degenerate_directions > 0 ? 1 : 0;
     bar.update(i + 1);
   }
@@ -263,9 +240,9 @@ run(int argc, char** argv)
   summary["deskew"] = {{"mode", rast::toString(params.deskew.mode)},
                        {"reason", deskew_reason},
                        {"timing", deskew_timing},
-                       {"frames_by_time_source", deskewed},
-                       {"second_passes", second_passes},
-                       {"time_field_warnings", time_warnings}};
+                       {"frames_by_time_source", tally.frames_by_time_source},
+                       {"second_passes", tally.second_passes},
+                       {"time_field_warnings", tally.time_field_warnings}};
   summary["max_rotation_error"] = rast::maxRotationError(poses);
   summary["error"] = run_error ? nlohmann::json(error_message) : nlohmann::json(nullptr);
   rast::writeFileAtomically(

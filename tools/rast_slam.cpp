@@ -332,9 +332,8 @@ run(int argc, char** argv)
   bool global_ba = defaults.loop_closing.global_bundle_adjustment;
   double map_leaf_m = 0.2;
   bool software_render = false, quiet = false;
-  std::string sensor = "auto", deskew = "auto";
-  double deskew_reference_deg = 0.0, deskew_period_s = 0.0;
-  bool deskew_ccw = false;
+  std::string sensor = "auto";
+  pcl_rast_tools::DeskewFlags deskew;
 
   ArgParser parser("pcl_rast_slam",
                    "LiDAR SLAM on rasterized ORB features (tracking, local mapping with optional "
@@ -353,19 +352,7 @@ run(int argc, char** argv)
   parser.addInt("stride", "use every stride-th scan", &stride);
   parser.addChoice("threads", "on: three threads; off: deterministic, one thread", &threads,
                    {"on", "off"});
-  parser.addChoice("deskew",
-                   "motion compensation of raw sweeps (auto: with the scans' own time "
-                   "field, others as they are; on: else times from the azimuth; "
-                   "doc/odometry.md)",
-                   &deskew, pcl_rast_tools::deskewChoices());
-  parser.addDouble("deskew-reference",
-                   "azimuth times: azimuth [deg] of the column firing at the frame time "
-                   "(0: forward, KITTI; 180: behind)",
-                   &deskew_reference_deg);
-  parser.addDouble("deskew-period", "sweep period [s] (0: from times.txt, else 0.1 s)",
-                   &deskew_period_s);
-  parser.addSwitch("deskew-ccw",
-                   "azimuth times: the head spins counter-clockwise seen from above", &deskew_ccw);
+  pcl_rast_tools::addDeskewFlags(parser, deskew);
   parser.addChoice("sensor", "parameter preset (auto: guessed from the first scan)", &sensor,
                    pcl_rast_tools::sensorChoices());
   parser.addSwitch("no-loop", "disable loop closure", &no_loop);
@@ -398,12 +385,7 @@ run(int argc, char** argv)
   if (young_map_scans < 1)
     throw std::invalid_argument("-young-map-scans must be >= 1, got " +
                                 std::to_string(young_map_scans));
-  if (!(deskew_period_s >= 0.0 && deskew_period_s <= 1.0))
-    throw std::invalid_argument("-deskew-period must be in [0, 1] s, got " +
-                                std::to_string(deskew_period_s));
-  if (!(std::abs(deskew_reference_deg) <= 360.0))
-    throw std::invalid_argument("-deskew-reference must be within +-360 deg, got " +
-                                std::to_string(deskew_reference_deg));
+  pcl_rast_tools::checkDeskewFlags(deskew);
   if (!(map_leaf_m > 0.0))
     throw std::invalid_argument("-map-leaf must be > 0, got " + std::to_string(map_leaf_m));
   if (ba && no_ba)
@@ -445,13 +427,9 @@ run(int argc, char** argv)
       pcl_rast_tools::resolveSensorPreset(sensor, reader, sensor_reason);
   std::cerr << "Sensor preset " << rast::toString(preset) << " (" << sensor_reason << ")\n";
   rast::applySensorPreset(preset, params.odometry);
-  std::string deskew_reason;
-  params.odometry.deskew.mode = pcl_rast_tools::resolveDeskewMode(deskew, reader, deskew_reason);
-  params.odometry.deskew.sweep.reference_azimuth_deg = deskew_reference_deg;
-  params.odometry.deskew.sweep.clockwise = !deskew_ccw;
-  std::string deskew_timing;
-  pcl_rast_tools::configureDeskewTiming(reader, static_cast<std::size_t>(stride), deskew_period_s,
-                                        params.odometry.deskew, deskew_timing);
+  std::string deskew_reason, deskew_timing;
+  pcl_rast_tools::applyDeskewFlags(deskew, reader, static_cast<std::size_t>(stride),
+                                   params.odometry.deskew, deskew_reason, deskew_timing);
   std::cerr << "Deskew " << rast::toString(params.odometry.deskew.mode) << " (" << deskew_reason
             << "; " << deskew_timing << ")\n";
   if (parser.given("young-map-scans"))
@@ -495,8 +473,7 @@ run(int argc, char** argv)
     });
   json skipped = json::array();
   std::size_t processed = 0;
-  std::size_t time_warnings = 0, second_passes = 0;
-  std::map<std::string, std::size_t> deskewed; // frames per time source
+  pcl_rast_tools::DeskewTally tally;
   // An error after frames were processed ends the run, not its results: what was
   // processed is written below, summary.json names the error, and the exit code is 3.
   std::exception_ptr run_error;
@@ -514,15 +491,11 @@ run(int argc, char** argv)
                              {"reason", "empty scan"}});
         }
         else {
-          if (!item.frame.time_warning.empty() && time_warnings++ == 0)
+          if (!item.frame.time_warning.empty() && tally.time_field_warnings++ == 0)
             std::cerr << "\npcl_rast_slam: warning: " << item.path << ": "
                       << item.frame.time_warning << " (reported once per run)\n";
-          const rast::OdometryFrameResult r =
-              slam.addScan(item.frame.cloud, item.timestamp_s, item.sequence_index,
-                           item.frame.point_times_s, item.path);
-          if (!r.deskew_times.empty())
-            ++deskewed[r.deskew_times];
-          second_passes += r.deskew_second_pass ? 1 : 0;
+          tally.add(slam.addScan(item.frame.cloud, item.timestamp_s, item.sequence_index,
+                                 item.frame.point_times_s, item.path));
         }
       }
       else {
@@ -639,9 +612,9 @@ run(int argc, char** argv)
   summary["interrupted"] = interrupted;
   summary["error"] = run_error ? json(error_message) : json(nullptr);
   summary["deskew"] = {{"mode", rast::toString(params.odometry.deskew.mode)},
-                       {"frames_by_time_source", deskewed},
-                       {"second_passes", second_passes},
-                       {"time_field_warnings", time_warnings}};
+                       {"frames_by_time_source", tally.frames_by_time_source},
+                       {"second_passes", tally.second_passes},
+                       {"time_field_warnings", tally.time_field_warnings}};
   {
     // How far the stored poses are from SO(3) (max of |R^T R - I| and |det R - 1|).
     rast::PoseVector stored = kf_poses;

@@ -1056,7 +1056,6 @@ LoopDetector::verifyPair(const KeyFrame& query,
   }
 
   v.accepted = true;
-  v.T_candidate_query = normalizedPose(v.T_candidate_query); // a loop edge is kept
   v.verify_ms = msSince(t0);
   v.reason =
       format("accepted: %.0f inliers (ratio %.2f), dense overlap %.2f, rmse %.3f m",

@@ -65,6 +65,15 @@ angleDeg(const Pose3d& T)
   return Eigen::AngleAxisd(T.rotation()).angle() * 180.0 / M_PI;
 }
 
+/// Point times a scan can be compensated with: one per point, each finite and within a
+/// second of the reference (a sweep).
+bool
+usableTimes(const std::vector<float>& times, std::size_t num_points)
+{
+  return !times.empty() && times.size() == num_points &&
+         std::all_of(times.begin(), times.end(), [](float t) { return std::abs(t) <= 1.0f; });
+}
+
 /// The dense step's figures of the fit a frame's pose comes from.
 void
 keepDenseStats(const DenseResult& dense, OdometryFrameResult& result)
@@ -494,7 +503,7 @@ Odometry::Impl::commitPose(const OdometryFrameResult& result)
 {
   T_world_before = T_world_last;
   t_before = t_last;
-  T_world_last = normalizedPose(result.T_world_lidar);
+  T_world_last = result.T_world_lidar; // normalized where it was made (step 6, predict)
   t_last = result.timestamp_s;
   ++num_poses;
   ++frames_since_keyframe;
@@ -1021,10 +1030,8 @@ Odometry::Impl::sweepTimes(const pcl::PointCloud<pcl::PointXYZI>& input,
 {
   if (params.deskew.mode == DeskewMode::kOff)
     return nullptr;
-  // Given times are used when there is one per point, all finite, spanning at most a
-  // second (a sweep); otherwise processFrame reports them and they are ignored.
-  if (!given.empty() && given.size() == input.size() &&
-      std::all_of(given.begin(), given.end(), [](float t) { return std::abs(t) <= 1.0f; })) {
+  // Unusable given times are ignored here and reported by processFrame.
+  if (usableTimes(given, input.size())) {
     source = "field";
     return &given;
   }
@@ -1060,12 +1067,10 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
     return impl_->skip(timestamp_s, frame_index, "null cloud");
   try {
     result = impl_->track(cloud, point_times_s, result);
-    if (!point_times_s.empty() && point_times_s.size() != cloud->size())
+    if (!point_times_s.empty() && !usableTimes(point_times_s, cloud->size()))
       result.message += "; " + std::to_string(point_times_s.size()) + " point times for " +
-                        std::to_string(cloud->size()) + " points: ignored";
-    else if (!std::all_of(point_times_s.begin(), point_times_s.end(),
-                          [](float t) { return std::abs(t) <= 1.0f; }))
-      result.message += "; point times not finite or beyond +-1 s: ignored";
+                        std::to_string(cloud->size()) +
+                        " points, or not finite or beyond +-1 s: ignored";
   } catch (const std::exception& e) {
     // Bad data must not stop the odometry: report it and predict.
     result = OdometryFrameResult();

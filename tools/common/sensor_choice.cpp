@@ -4,6 +4,7 @@
 #include "sensor_choice.h"
 
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <stdexcept>
 
@@ -97,6 +98,57 @@ configureDeskewTiming(const pcl::rast::SequenceReader& reader,
   }
   params.sweep_period_s = period;
   params.seconds_per_timestamp = seconds ? 1.0 : period;
+}
+
+void
+addDeskewFlags(ArgParser& parser, DeskewFlags& flags)
+{
+  parser.addChoice("deskew",
+                   "motion compensation of raw sweeps (auto: with the scans' own time "
+                   "field, others as they are; on: else times from the azimuth; "
+                   "doc/odometry.md)",
+                   &flags.mode, deskewChoices());
+  parser.addDouble("deskew-reference",
+                   "azimuth times: azimuth [deg] of the column firing at the frame time "
+                   "(0: forward, KITTI; 180: behind)",
+                   &flags.reference_deg);
+  parser.addDouble("deskew-period", "sweep period [s] (0: from times.txt, else 0.1 s)",
+                   &flags.period_s);
+  parser.addSwitch("deskew-ccw",
+                   "azimuth times: the head spins counter-clockwise seen from above", &flags.ccw);
+}
+
+void
+checkDeskewFlags(const DeskewFlags& flags)
+{
+  if (!(flags.period_s >= 0.0 && flags.period_s <= 1.0))
+    throw std::invalid_argument("-deskew-period must be in [0, 1] s, got " +
+                                std::to_string(flags.period_s));
+  if (!(std::abs(flags.reference_deg) <= 360.0))
+    throw std::invalid_argument("-deskew-reference must be within +-360 deg, got " +
+                                std::to_string(flags.reference_deg));
+}
+
+void
+applyDeskewFlags(const DeskewFlags& flags,
+                 const pcl::rast::SequenceReader& reader,
+                 std::size_t stride,
+                 pcl::rast::DeskewParams& params,
+                 std::string& reason,
+                 std::string& timing)
+{
+  params.mode = resolveDeskewMode(flags.mode, reader, reason);
+  params.sweep.reference_azimuth_deg = flags.reference_deg;
+  params.sweep.clockwise = !flags.ccw;
+  configureDeskewTiming(reader, stride, flags.period_s, params, timing);
+}
+
+void
+DeskewTally::add(const pcl::rast::OdometryFrameResult& result)
+{
+  if (!result.deskew_times.empty())
+    ++frames_by_time_source[result.deskew_times];
+  second_passes += result.deskew_second_pass ? 1 : 0;
 }
 
 } // namespace pcl_rast_tools
