@@ -8,6 +8,10 @@
 ///
 /// Read the CPU column on a shared machine: wall time includes waiting for the core.
 
+#include <algorithm>
+#include <benchmark/benchmark.h>
+#include <cstdio>
+#include <filesystem>
 #include <pcl/features/orb_raster_features.h>
 #include <pcl/features/range_raster_image.h>
 #include <pcl/registration/hamming_correspondence_estimation.h>
@@ -15,12 +19,6 @@
 #include <pcl/segmentation/sac_ground_removal.h>
 #include <pcl/slam/odometry.h>
 #include <pcl/slam/sequence_reader.h>
-
-#include <benchmark/benchmark.h>
-
-#include <algorithm>
-#include <cstdio>
-#include <filesystem>
 #include <vector>
 
 namespace {
@@ -144,9 +142,8 @@ BM_MatchRansacPose(benchmark::State& state)
     const std::size_t k = i++ % (f.size() - 1);
     const pcl::Correspondences matches =
         rast::matchHamming(f[k + 1], f[k], params.registration.matching);
-    const rast::RigidRansacResult r =
-        rast::estimateRigidRansac(f[k + 1].points, f[k].points, matches,
-                                  params.registration.ransac);
+    const rast::RigidRansacResult r = rast::estimateRigidRansac(
+        f[k + 1].points, f[k].points, matches, params.registration.ransac);
     benchmark::DoNotOptimize(r.success);
   }
 }
@@ -232,6 +229,21 @@ BM_ProcessFrameDeskewAzimuth(benchmark::State& state)
 }
 BENCHMARK(BM_ProcessFrameDeskewAzimuth)->Unit(benchmark::kMillisecond)->Iterations(210);
 
+/// The same without the second pass (compensation with the prior's motion only): the
+/// second pass's cost, side by side.
+void
+BM_ProcessFrameDeskewFirstPassOnly(benchmark::State& state)
+{
+  rast::OdometryParams params;
+  params.deskew.mode = rast::DeskewMode::kOn;
+  params.deskew.second_pass_translation_m = 1e9;
+  params.deskew.second_pass_rotation_deg = 1e9;
+  processFrames(state, params);
+}
+BENCHMARK(BM_ProcessFrameDeskewFirstPassOnly)
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(210);
+
 /// The first pass alone on one real HDL-64 scan (~117k points): times from the azimuth
 /// and the compensation (eq. 1 of deskew.h) at 0.8 m and 1 deg a frame.
 void
@@ -249,6 +261,33 @@ BM_DeskewScan(benchmark::State& state)
   state.counters["points"] = static_cast<double>(scan.size());
 }
 BENCHMARK(BM_DeskewScan)->Unit(benchmark::kMillisecond);
+
+/// Its two parts: the per-point times from the azimuth ...
+void
+BM_AzimuthTimes(benchmark::State& state)
+{
+  if (skipWithoutData(state))
+    return;
+  const Cloud& scan = *data().scans.front();
+  for (auto _ : state)
+    benchmark::DoNotOptimize(rast::azimuthTimes(scan, 0.1));
+}
+BENCHMARK(BM_AzimuthTimes)->Unit(benchmark::kMillisecond);
+
+/// ... and the compensation itself.
+void
+BM_DeskewCloud(benchmark::State& state)
+{
+  if (skipWithoutData(state))
+    return;
+  const Cloud& scan = *data().scans.front();
+  const std::vector<float> times = rast::azimuthTimes(scan, 0.1);
+  rast::Twist xi;
+  xi << 8.0, 0.0, 0.0, 0.0, 0.0, 0.17;
+  for (auto _ : state)
+    benchmark::DoNotOptimize(rast::deskewCloud(scan, times, xi));
+}
+BENCHMARK(BM_DeskewCloud)->Unit(benchmark::kMillisecond);
 
 } // namespace
 

@@ -20,13 +20,10 @@
 ///   above (KITTI / Velodyne), with the forward column (+x) firing at the frame time:
 ///   tau(a) = -wrap(a - reference) / (2 pi) * period.
 
-#include <pcl/slam/rigid_pose.h>
-
+#include <Eigen/Core>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
-
-#include <Eigen/Core>
-
+#include <pcl/slam/rigid_pose.h>
 #include <string>
 #include <vector>
 
@@ -37,12 +34,10 @@ namespace rast {
 using Twist = Eigen::Matrix<double, 6, 1>;
 
 /// \brief SE(3) logarithm: the twist (v, w) with exp(twist) = T.
-Twist
-logSE3(const Pose3d& T);
+Twist logSE3(const Pose3d& T);
 
 /// \brief SE(3) exponential of the twist (v, w).
-Pose3d
-expSE3(const Twist& twist);
+Pose3d expSE3(const Twist& twist);
 
 /// \brief How a spinning head sweeps, for times derived from the azimuth.
 struct SweepParams
@@ -61,10 +56,18 @@ struct SweepParams
 /// \brief Per point, its firing time relative to the frame time [s] from its azimuth:
 /// in [-period/2, period/2] (see the file comment).
 /// \throws std::invalid_argument when period_s is not positive and finite.
-std::vector<float>
-azimuthTimes(const pcl::PointCloud<pcl::PointXYZI>& cloud,
-             double period_s,
-             const SweepParams& sweep = SweepParams());
+std::vector<float> azimuthTimes(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                                double period_s,
+                                const SweepParams& sweep = SweepParams());
+
+/// \brief The same for the points \a indices of \a cloud only: times[k] belongs to
+/// cloud[indices[k]].
+/// \throws std::invalid_argument when period_s is not positive and finite,
+/// std::out_of_range when an index is outside the cloud.
+std::vector<float> azimuthTimes(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                                const pcl::Indices& indices,
+                                double period_s,
+                                const SweepParams& sweep = SweepParams());
 
 /// \brief Motion-compensate \a cloud: each point moved by eq. (1) with its time from
 /// \a times_s (relative to the reference time) and the twist \a xi_per_s.
