@@ -3,18 +3,16 @@
 /// ground removal -> raster -> ORB -> match the last key-frame -> RANSAC -> dense
 /// refinement against the local map -> feature-consistency fallbacks -> key-frame.
 
-#include <pcl/slam/odometry.h>
-
-#include <pcl/registration/hamming_correspondence_estimation.h>
-#include <pcl/registration/rigid_ransac.h>
-
 #include "odometry_local_map.h"
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <optional>
 #include <numeric>
+#include <optional>
+#include <pcl/registration/hamming_correspondence_estimation.h>
+#include <pcl/registration/rigid_ransac.h>
+#include <pcl/slam/odometry.h>
 #include <stdexcept>
 #include <vector>
 
@@ -71,7 +69,8 @@ bool
 usableTimes(const std::vector<float>& times, std::size_t num_points)
 {
   return !times.empty() && times.size() == num_points &&
-         std::all_of(times.begin(), times.end(), [](float t) { return std::abs(t) <= 1.0f; });
+         std::all_of(
+             times.begin(), times.end(), [](float t) { return std::abs(t) <= 1.0f; });
 }
 
 /// The dense step's figures of the fit a frame's pose comes from.
@@ -121,14 +120,18 @@ constexpr double kMinDistinctPairedRatio = 0.2;
 /// last scan's frame, which top-down raster features measure well) and the prior's
 /// height, roll and pitch (which max-height pixels of few inliers do not).
 Pose3d
-planarFromFeatures(const Pose3d& T_world_last, const Pose3d& T_world_features, const Pose3d& T_world_prior)
+planarFromFeatures(const Pose3d& T_world_last,
+                   const Pose3d& T_world_features,
+                   const Pose3d& T_world_prior)
 {
   const Pose3d d_f = T_world_last.inverse() * T_world_features;
   const Pose3d d_p = T_world_last.inverse() * T_world_prior;
   const double yaw_f = std::atan2(d_f.rotation()(1, 0), d_f.rotation()(0, 0));
   const double yaw_p = std::atan2(d_p.rotation()(1, 0), d_p.rotation()(0, 0));
   Pose3d d = d_p; // the prior, turned to the features' heading and moved to their x, y
-  d.linear() = Eigen::AngleAxisd(yaw_f - yaw_p, Eigen::Vector3d::UnitZ()).toRotationMatrix() * d_p.rotation();
+  d.linear() =
+      Eigen::AngleAxisd(yaw_f - yaw_p, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
+      d_p.rotation();
   d.translation().x() = d_f.translation().x();
   d.translation().y() = d_f.translation().y();
   return T_world_last * d;
@@ -152,7 +155,8 @@ motionHypotheses(const Pose3d& T_world_prior,
   if (!params.enabled)
     return starts;
   starts.insert(starts.end(), weak_estimates.begin(), weak_estimates.end());
-  const int shifts = static_cast<int>(std::ceil(max_travel_m / params.cold_start_step_m - 1e-9));
+  const int shifts =
+      static_cast<int>(std::ceil(max_travel_m / params.cold_start_step_m - 1e-9));
   for (int k = 1; k <= shifts; ++k)
     for (const int sign : {1, -1}) {
       Pose3d shifted = Pose3d::Identity();
@@ -160,7 +164,8 @@ motionHypotheses(const Pose3d& T_world_prior,
       starts.push_back(T_world_prior * shifted);
     }
   const Pose3d delta = T_world_last.inverse() * T_world_prior;
-  const int steps = static_cast<int>(std::floor(params.max_yaw_deg / params.yaw_step_deg + 1e-9));
+  const int steps =
+      static_cast<int>(std::floor(params.max_yaw_deg / params.yaw_step_deg + 1e-9));
   for (int k = 1; k <= steps; ++k)
     for (const int sign : {1, -1}) {
       const double yaw = sign * k * params.yaw_step_deg * M_PI / 180.0;
@@ -195,9 +200,10 @@ bestDenseFromHypotheses(const Points3f& source,
                         const MotionHypothesisParams& params)
 {
   DenseTrackingParams coarse = dense;
-  coarse.max_correspondence_distance_m = std::max(dense.max_correspondence_distance_m,
-                                                  params.coarse_correspondence_distance_m);
-  coarse.max_correction_m = std::max(dense.max_correction_m, params.coarse_max_correction_m);
+  coarse.max_correspondence_distance_m = std::max(
+      dense.max_correspondence_distance_m, params.coarse_correspondence_distance_m);
+  coarse.max_correction_m =
+      std::max(dense.max_correction_m, params.coarse_max_correction_m);
   coarse.max_correction_deg = std::max(dense.max_correction_deg, params.yaw_step_deg);
   std::vector<DenseResult> runs;
   runs.reserve(starts.size());
@@ -208,7 +214,8 @@ bestDenseFromHypotheses(const Points3f& source,
     if (!r.success || r.degenerate_directions > 0)
       continue;
     if (best < 0 || r.num_correspondences > runs[best].num_correspondences ||
-        (r.num_correspondences == runs[best].num_correspondences && r.rmse_m < runs[best].rmse_m))
+        (r.num_correspondences == runs[best].num_correspondences &&
+         r.rmse_m < runs[best].rmse_m))
       best = static_cast<int>(runs.size()) - 1;
   }
   HypothesisSearch search;
@@ -286,7 +293,8 @@ MotionHypothesisParams::isValid(std::string* why) const
            !std::isfinite(cold_start_max_speed_mps))
     reason = "cold_start_step_m must be > 0 and cold_start_max_speed_mps >= 0";
   else if (!(guided_gate_m >= 0.0) || !std::isfinite(guided_gate_m))
-    reason = "guided_gate_m must be finite and >= 0, got " + std::to_string(guided_gate_m);
+    reason =
+        "guided_gate_m must be finite and >= 0, got " + std::to_string(guided_gate_m);
   else if (!(guided_refit_gate_m >= 0.0) || !std::isfinite(guided_refit_gate_m))
     reason = "guided_refit_gate_m must be finite and >= 0, got " +
              std::to_string(guided_refit_gate_m);
@@ -317,15 +325,18 @@ OdometryParams::isValid(std::string* why) const
   else if (!deskew.isValid(&sub))
     reason = "deskew." + sub;
   else if (keyframe_min_frames < 1)
-    reason = "keyframe_min_frames must be >= 1, got " + std::to_string(keyframe_min_frames);
+    reason =
+        "keyframe_min_frames must be >= 1, got " + std::to_string(keyframe_min_frames);
   else if (keyframe_max_common_points < 0)
     reason = "keyframe_max_common_points must be >= 0, got " +
              std::to_string(keyframe_max_common_points);
-  else if (!(min_range_m >= 0.0) || !(max_range_m > min_range_m) || !std::isfinite(max_range_m))
-    reason = "need 0 <= min_range_m < max_range_m (finite), got " + std::to_string(min_range_m) +
-             ", " + std::to_string(max_range_m);
+  else if (!(min_range_m >= 0.0) || !(max_range_m > min_range_m) ||
+           !std::isfinite(max_range_m))
+    reason = "need 0 <= min_range_m < max_range_m (finite), got " +
+             std::to_string(min_range_m) + ", " + std::to_string(max_range_m);
   else if (min_feature_inliers < 3)
-    reason = "min_feature_inliers must be >= 3, got " + std::to_string(min_feature_inliers);
+    reason =
+        "min_feature_inliers must be >= 3, got " + std::to_string(min_feature_inliers);
   else if (strong_feature_inliers < min_feature_inliers)
     reason = "strong_feature_inliers must be >= min_feature_inliers";
   else if (!finitePositive(prior_gate_m) || !finitePositive(prior_gate_deg))
@@ -334,7 +345,8 @@ OdometryParams::isValid(std::string* why) const
     reason = "keyframe_voxel_size_m must be > 0";
   else if (keyframe_min_inliers < 0)
     reason = "keyframe_min_inliers must be >= 0";
-  else if (!finitePositive(keyframe_max_distance_m) || !finitePositive(keyframe_max_rotation_deg))
+  else if (!finitePositive(keyframe_max_distance_m) ||
+           !finitePositive(keyframe_max_rotation_deg))
     reason = "keyframe_max_distance_m and keyframe_max_rotation_deg must be > 0";
   if (why)
     *why = reason;
@@ -421,20 +433,15 @@ struct Odometry::Impl
   bool last_tracked = false;
   bool velocity_tracked = false;
 
-  Pose3d
-  predict(double timestamp_s) const;
-  double
-  frameInterval(double timestamp_s) const;
-  void
-  checkIndex(std::size_t frame_index);
-  void
-  commitPose(const OdometryFrameResult& result);
+  Pose3d predict(double timestamp_s) const;
+  double frameInterval(double timestamp_s) const;
+  void checkIndex(std::size_t frame_index);
+  void commitPose(const OdometryFrameResult& result);
   OdometryFrameResult
   skip(double timestamp_s, std::size_t frame_index, const std::string& reason);
-  OdometryFrameResult
-  track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
-        const std::vector<float>& point_times,
-        OdometryFrameResult result);
+  OdometryFrameResult track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
+                            const std::vector<float>& point_times,
+                            OdometryFrameResult result);
   /// The times to compensate \a input with (params.deskew): the given ones, times from
   /// the azimuth, or none (null). \a storage holds azimuth times.
   /// Step 5b of track: where the estimated motion differs from the previous frame's (a
@@ -456,12 +463,11 @@ struct Odometry::Impl
                                        double frame_interval_s,
                                        std::vector<float>& storage,
                                        std::string& source) const;
-  KeyFrame::Ptr
-  makeKeyFrame(const OdometryFrameResult& result,
-               RasterFeatureSet&& features,
-               const pcl::PointCloud<pcl::PointXYZI>& cloud);
-  void
-  insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud, const Pose3d& T_world_lidar);
+  KeyFrame::Ptr makeKeyFrame(const OdometryFrameResult& result,
+                             RasterFeatureSet&& features,
+                             const pcl::PointCloud<pcl::PointXYZI>& cloud);
+  void insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                     const Pose3d& T_world_lidar);
 };
 
 Pose3d
@@ -476,7 +482,8 @@ Odometry::Impl::predict(double timestamp_s) const
   double ratio = 1.0;
   if (std::isfinite(dt_prev) && std::isfinite(dt) && dt_prev > 1e-6 && dt > 0.0)
     ratio = std::min(dt / dt_prev, 5.0);
-  return composePoses(T_world_last, scaleMotion(T_world_before.inverse() * T_world_last, ratio));
+  return composePoses(T_world_last,
+                      scaleMotion(T_world_before.inverse() * T_world_last, ratio));
 }
 
 double
@@ -529,16 +536,17 @@ Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
   kf->frame_index = result.frame_index;
   kf->timestamp_s = result.timestamp_s;
   kf->T_world_keyframe = result.T_world_lidar;
-  kf->T_previous_keyframe = keyframe ? composePoses(T_world_keyframe.inverse(), result.T_world_lidar)
-                                     : Pose3d::Identity();
+  kf->T_previous_keyframe =
+      keyframe ? composePoses(T_world_keyframe.inverse(), result.T_world_lidar)
+               : Pose3d::Identity();
   kf->features = std::move(features);
   kf->map_point_ids.assign(kf->features.size(), kNoMapPoint);
   kf->odometry_map_scans = map_scans;
 
   // The voxelized scan the key-frame keeps (memory: keyframe_voxel_size_m) ...
   const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
-  const std::vector<int> kept =
-      odometry_detail::voxelDownsampleIndices(cloud, params.keyframe_voxel_size_m, in_range);
+  const std::vector<int> kept = odometry_detail::voxelDownsampleIndices(
+      cloud, params.keyframe_voxel_size_m, in_range);
   auto voxels = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
   voxels->header = cloud.header;
   voxels->points.reserve(kept.size());
@@ -598,7 +606,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   // 0b. Motion compensation (deskew.h) with the previous frame's motion; every step
   //     below, the key-frame's cloud and the local map use the compensated scan.
   auto start = Clock::now();
-  const double dt = frameInterval(result.timestamp_s) * params.deskew.seconds_per_timestamp;
+  const double dt =
+      frameInterval(result.timestamp_s) * params.deskew.seconds_per_timestamp;
   std::vector<float> azimuth_times;
   const std::vector<float>* times =
       sweepTimes(input, point_times, dt, azimuth_times, result.deskew_times);
@@ -624,8 +633,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     result.timings.raster_ms = orb_result.raster_ms;
     result.timings.orb_ms = orb_result.detect_ms + orb_result.describe_ms;
     // Features of a levelled raster go back to the LiDAR frame.
-    if (ground_result.ground_found && !ground_result.T_level_lidar.isApprox(
-                                          Eigen::Isometry3f::Identity())) {
+    if (ground_result.ground_found &&
+        !ground_result.T_level_lidar.isApprox(Eigen::Isometry3f::Identity())) {
       const Eigen::Isometry3f T_lidar_level = ground_result.T_level_lidar.inverse();
       for (auto& p : features->points)
         p.getVector3fMap() = T_lidar_level * p.getVector3fMap();
@@ -657,9 +666,10 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   start = Clock::now();
   const RasterFeatureSet& kf_features = keyframe->features;
   auto fit = [&](const RasterFeatureSet& target, const pcl::Correspondences& matches) {
-    return matches.size() >= 3 ? estimateRigidRansac(features->points, target.points, matches,
-                                                     params.registration.ransac)
-                               : RigidRansacResult();
+    return matches.size() >= 3
+               ? estimateRigidRansac(
+                     features->points, target.points, matches, params.registration.ransac)
+               : RigidRansacResult();
   };
   auto inliersOf = [](const RigidRansacResult& fit) {
     return fit.success ? static_cast<int>(fit.inlier_indices.size()) : 0;
@@ -668,8 +678,11 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   // feature's nearest neighbour.
   pcl::Correspondences kf_matches, kf_nearest;
   if (features->size() >= 3 && kf_features.size() >= 3)
-    kf_matches = matchHamming(*features, kf_features, params.registration.matching,
-                              T_keyframe_prior, &kf_nearest);
+    kf_matches = matchHamming(*features,
+                              kf_features,
+                              params.registration.matching,
+                              T_keyframe_prior,
+                              &kf_nearest);
   result.num_matches = static_cast<int>(kf_matches.size());
   RigidRansacResult ransac = fit(kf_features, kf_matches);
   result.num_inliers = inliersOf(ransac);
@@ -684,10 +697,13 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   };
   keepWeak(ransac, T_world_keyframe);
   std::string reference = "the key-frame";
-  if (!features_ok && last_features && features->size() >= 3 && last_features->size() >= 3) {
+  if (!features_ok && last_features && features->size() >= 3 &&
+      last_features->size() >= 3) {
     // Too far from the key-frame: the previous frame is closer.
     const pcl::Correspondences matches =
-        matchHamming(*features, *last_features, params.registration.matching,
+        matchHamming(*features,
+                     *last_features,
+                     params.registration.matching,
                      T_world_last_features.inverse() * T_world_prior);
     const RigidRansacResult last = fit(*last_features, matches);
     keepWeak(last, T_world_last_features);
@@ -704,7 +720,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     // Weak: the key-frame's nearest-neighbour matches alone; RANSAC sorts them out.
     const RigidRansacResult nearest = fit(kf_features, kf_nearest);
     keepWeak(nearest, T_world_keyframe);
-    if (inliersOf(nearest) > inliersOf(ransac) && inliersOf(nearest) >= params.min_feature_inliers) {
+    if (inliersOf(nearest) > inliersOf(ransac) &&
+        inliersOf(nearest) >= params.min_feature_inliers) {
       features_ok = true;
       T_world_features = T_world_keyframe * nearest.T_target_source;
       result.num_matches = static_cast<int>(kf_nearest.size());
@@ -724,7 +741,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   Points3f source;
   if (params.registration.refine || !features_ok) {
     source_indices = odometry_detail::strideSubsample(
-        odometry_detail::voxelDownsampleIndices(*cloud, params.dense.source_voxel_size_m, in_range),
+        odometry_detail::voxelDownsampleIndices(
+            *cloud, params.dense.source_voxel_size_m, in_range),
         static_cast<std::size_t>(params.dense.max_source_points));
     source = odometry_detail::toPoints(*cloud, source_indices);
   }
@@ -736,7 +754,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
                             angleDeg(prior_diff) <= params.prior_gate_deg;
     result.status = TrackingStatus::kFeatures;
     result.T_world_lidar = T_world_features;
-    result.message = "features: " + std::to_string(inliers) + " inliers with " + reference;
+    result.message =
+        "features: " + std::to_string(inliers) + " inliers with " + reference;
     if (params.registration.refine) {
       DenseResult dense = registerToMap(source, map, T_world_features, params.dense);
       if (inliers < params.strong_feature_inliers) {
@@ -756,9 +775,9 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
           if (!near_prior) {
             result.status = TrackingStatus::kDenseFallback;
             result.degraded = true;
-            result.message = "weak features disagree with the prior: dense from the prior";
-          }
-          else {
+            result.message =
+                "weak features disagree with the prior: dense from the prior";
+          } else {
             result.message += " (dense from their planar part fitted better)";
           }
         }
@@ -770,7 +789,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
         result.message += "; " + dense.message;
       } else {
         result.degraded = true;
-        result.message += "; refinement failed, feature estimate kept (" + dense.message + ")";
+        result.message +=
+            "; refinement failed, feature estimate kept (" + dense.message + ")";
       }
     }
   } else {
@@ -779,11 +799,12 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     // hypotheses: the prior, the weak feature estimates, the prior turned by +-yaw
     // steps and, without a tracked velocity (cold start), shifted along the direction
     // of travel; the best-paired result wins.
-    const double max_travel_m =
-        velocity_tracked ? 0.0
-                         : params.turn_search.cold_start_max_speed_mps * frameInterval(result.timestamp_s);
-    const std::vector<Pose3d> starts = motionHypotheses(T_world_prior, T_world_last, weak_estimates,
-                                                        max_travel_m, params.turn_search);
+    const double max_travel_m = velocity_tracked
+                                    ? 0.0
+                                    : params.turn_search.cold_start_max_speed_mps *
+                                          frameInterval(result.timestamp_s);
+    const std::vector<Pose3d> starts = motionHypotheses(
+        T_world_prior, T_world_last, weak_estimates, max_travel_m, params.turn_search);
     const HypothesisSearch search =
         bestDenseFromHypotheses(source, map, starts, params.dense, params.turn_search);
     DenseResult dense = search.dense;
@@ -793,17 +814,20 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
                             std::to_string(params.min_feature_inliers) + ")";
     // Features pairing under a motion: each only against the key-frame's features
     // within the gate of where the motion puts it, nearest descriptor, no ratio test.
-    const bool can_guide = params.turn_search.enabled && params.turn_search.guided_gate_m > 0.0 &&
+    const bool can_guide = params.turn_search.enabled &&
+                           params.turn_search.guided_gate_m > 0.0 &&
                            features->size() >= 3 && kf_features.size() >= 3;
     auto guidedMatches = [&](const Pose3d& T_world_lidar, double gate_m) {
       HammingMatchParams gated = params.registration.matching;
       gated.ratio = 1.0;
       gated.mutual_check = false;
       gated.spatial_gate_radius_m = gate_m;
-      return matchHamming(*features, kf_features, gated, T_world_keyframe.inverse() * T_world_lidar);
+      return matchHamming(
+          *features, kf_features, gated, T_world_keyframe.inverse() * T_world_lidar);
     };
     auto guidedPairs = [&](const Pose3d& T_world_lidar) {
-      return static_cast<int>(guidedMatches(T_world_lidar, params.turn_search.guided_gate_m).size());
+      return static_cast<int>(
+          guidedMatches(T_world_lidar, params.turn_search.guided_gate_m).size());
     };
     // Re-fit: dense ICP can settle a degree or two off in yaw where the scan is weak in
     // structure (a hillside's scan rings). The features matched under its result (a
@@ -814,16 +838,20 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     if (dense.success && can_guide && params.turn_search.guided_refit_gate_m > 0.0) {
       const pcl::Correspondences matches =
           guidedMatches(dense.T_world_lidar, params.turn_search.guided_refit_gate_m);
-      const RigidRansacResult fit =
-          matches.size() >= 3 ? estimateRigidRansac(features->points, kf_features.points,
-                                                    matches, params.registration.ransac)
-                              : RigidRansacResult();
+      const RigidRansacResult fit = matches.size() >= 3
+                                        ? estimateRigidRansac(features->points,
+                                                              kf_features.points,
+                                                              matches,
+                                                              params.registration.ransac)
+                                        : RigidRansacResult();
       if (inliersOf(fit) >= params.min_feature_inliers) {
-        const DenseResult again = registerToMap(
-            source, map,
-            planarFromFeatures(T_world_last, T_world_keyframe * fit.T_target_source,
-                               dense.T_world_lidar),
-            params.dense);
+        const DenseResult again =
+            registerToMap(source,
+                          map,
+                          planarFromFeatures(T_world_last,
+                                             T_world_keyframe * fit.T_target_source,
+                                             dense.T_world_lidar),
+                          params.dense);
         const int before = guidedPairs(dense.T_world_lidar);
         const int after = again.success ? guidedPairs(again.T_world_lidar) : 0;
         dense_guided_pairs = std::max(before, after);
@@ -839,23 +867,26 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     // Dense ICP alone from a wrong start can settle on the ground plane with the wrong
     // yaw; accept it only when most of the scan pairs with the map, or when fewer do
     // but no other hypothesis comes close (a distinct optimum).
-    const double paired_ratio =
-        static_cast<double>(dense.num_correspondences) / std::max(1, dense.num_source_points);
+    const double paired_ratio = static_cast<double>(dense.num_correspondences) /
+                                std::max(1, dense.num_source_points);
     // Distinct needs a rival that ended elsewhere: when every start agrees (or only the
     // prior was tried) the ratio test above is all there is.
-    const bool distinct = search.runner_up_pairs > 0 &&
-                          search.best_pairs >= kDistinctPairsFactor * search.runner_up_pairs &&
-                          paired_ratio >= kMinDistinctPairedRatio;
+    const bool distinct =
+        search.runner_up_pairs > 0 &&
+        search.best_pairs >= kDistinctPairsFactor * search.runner_up_pairs &&
+        paired_ratio >= kMinDistinctPairedRatio;
     // ... or when the features back it against that rival.
     bool feature_backed = false;
     if (dense.success && search.runner_up_pairs > 0 && can_guide) {
       result.guided_pairs =
           dense_guided_pairs >= 0 ? dense_guided_pairs : guidedPairs(dense.T_world_lidar);
       const int rival = guidedPairs(search.T_world_runner_up);
-      feature_backed = result.guided_pairs >= params.min_feature_inliers &&
-                       result.guided_pairs >= params.turn_search.guided_support_factor * rival;
+      feature_backed =
+          result.guided_pairs >= params.min_feature_inliers &&
+          result.guided_pairs >= params.turn_search.guided_support_factor * rival;
     }
-    const bool well_paired = paired_ratio >= kMinFallbackPairedRatio || distinct || feature_backed;
+    const bool well_paired =
+        paired_ratio >= kMinFallbackPairedRatio || distinct || feature_backed;
     if (dense.success && dense.degenerate_directions == 0 && well_paired) {
       result.status = TrackingStatus::kDenseFallback;
       result.T_world_lidar = dense.T_world_lidar;
@@ -868,7 +899,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     } else {
       // The prior, corrected only along the directions the scan constrains (e.g. the
       // ground's height, roll and pitch on an open field).
-      const DenseResult from_prior = registerToMap(source, map, T_world_prior, params.dense);
+      const DenseResult from_prior =
+          registerToMap(source, map, T_world_prior, params.dense);
       result.status = TrackingStatus::kConstantVelocity;
       if (from_prior.success)
         result.T_world_lidar = from_prior.T_world_lidar;
@@ -881,7 +913,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   //     map rebuilt from the first scan, compensated, once its motion is known.
   std::optional<Twist> xi_final;
   if (times && num_poses >= 2 && result.refined && !source_indices.empty())
-    xi_final = secondDeskewPass(input, *times, source_indices, dt, T_motion_prior, result);
+    xi_final =
+        secondDeskewPass(input, *times, source_indices, dt, T_motion_prior, result);
   if (first_scan)
     rebuildMapFromFirstScan(result);
   auto keptCloud = [&]() -> const pcl::PointCloud<pcl::PointXYZI>& {
@@ -905,14 +938,17 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     result.message += "; non-finite estimate: constant-velocity prediction";
   }
   result.T_world_lidar = normalizedPose(result.T_world_lidar);
-  result.T_keyframe_lidar = composePoses(T_world_keyframe.inverse(), result.T_world_lidar);
-  const bool tracked = result.status == TrackingStatus::kFeatures ||
-                       (result.status == TrackingStatus::kDenseFallback && result.refined);
+  result.T_keyframe_lidar =
+      composePoses(T_world_keyframe.inverse(), result.T_world_lidar);
+  const bool tracked =
+      result.status == TrackingStatus::kFeatures ||
+      (result.status == TrackingStatus::kDenseFallback && result.refined);
   const int frames_since = frames_since_keyframe + 1;
   const bool paper_rule = frames_since >= params.keyframe_min_frames &&
                           result.num_inliers <= params.keyframe_max_common_points;
-  const bool far = result.T_keyframe_lidar.translation().norm() > params.keyframe_max_distance_m ||
-                   angleDeg(result.T_keyframe_lidar) > params.keyframe_max_rotation_deg;
+  const bool far =
+      result.T_keyframe_lidar.translation().norm() > params.keyframe_max_distance_m ||
+      angleDeg(result.T_keyframe_lidar) > params.keyframe_max_rotation_deg;
   const bool useful = result.num_features >= params.keyframe_min_inliers;
   const bool weak = result.num_inliers < params.keyframe_min_inliers && useful;
   const bool reanchor = frames_without_tracking + 1 >= kReanchorAfterFrames && useful;
@@ -925,7 +961,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
       result.message += "; re-anchored: new key-frame after a stretch without tracking";
     }
   }
-  if (!result.keyframe && tracked && result.refined && map_scans < params.dense.young_map_scans)
+  if (!result.keyframe && tracked && result.refined &&
+      map_scans < params.dense.young_map_scans)
     insertIntoMap(keptCloud(), result.T_world_lidar);
   result.timings.keyframe_ms = msSince(start);
   if (tracked && !result.keyframe) {
@@ -990,11 +1027,12 @@ Odometry::Impl::secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
     const auto again = deskewCloud(raw_source, source_times, xi, params.deskew.bins);
     std::vector<int> all(again->size());
     std::iota(all.begin(), all.end(), 0);
-    const DenseResult dense = registerToMap(odometry_detail::toPoints(*again, all), map,
-                                            result.T_world_lidar, params.dense);
+    const DenseResult dense = registerToMap(
+        odometry_detail::toPoints(*again, all), map, result.T_world_lidar, params.dense);
     // Kept when it pairs about as well as the first fit (a compensation that does not
     // fit the map is not the better one).
-    if (dense.success && dense.num_correspondences >= 0.95 * result.dense_correspondences) {
+    if (dense.success &&
+        dense.num_correspondences >= 0.95 * result.dense_correspondences) {
       kept = xi;
       keepDenseStats(dense, result);
       result.T_world_lidar = dense.T_world_lidar;
@@ -1008,13 +1046,15 @@ Odometry::Impl::secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
 void
 Odometry::Impl::rebuildMapFromFirstScan(OdometryFrameResult& result)
 {
-  const double dt_first = (result.timestamp_s - t_first) * params.deskew.seconds_per_timestamp;
+  const double dt_first =
+      (result.timestamp_s - t_first) * params.deskew.seconds_per_timestamp;
   if (result.refined && map_scans == 1 && dt_first > 1e-6 && dt_first < 1.0) {
     const auto start = Clock::now();
     const Twist xi = logSE3(T_world_first.inverse() * result.T_world_lidar) / dt_first;
     map = VoxelPlaneMap(params.dense);
     map_scans = 0;
-    insertIntoMap(*deskewCloud(*first_scan, first_times, xi, params.deskew.bins), T_world_first);
+    insertIntoMap(*deskewCloud(*first_scan, first_times, xi, params.deskew.bins),
+                  T_world_first);
     result.timings.deskew_ms += msSince(start);
   }
   first_scan.reset();
@@ -1037,8 +1077,8 @@ Odometry::Impl::sweepTimes(const pcl::PointCloud<pcl::PointXYZI>& input,
   }
   if (params.deskew.mode != DeskewMode::kOn)
     return nullptr;
-  const double period =
-      params.deskew.sweep_period_s > 0.0 ? params.deskew.sweep_period_s : frame_interval_s;
+  const double period = params.deskew.sweep_period_s > 0.0 ? params.deskew.sweep_period_s
+                                                           : frame_interval_s;
   storage = azimuthTimes(input, period, params.deskew.sweep);
   source = "azimuth";
   return &storage;
@@ -1068,8 +1108,8 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
   try {
     result = impl_->track(cloud, point_times_s, result);
     if (!point_times_s.empty() && !usableTimes(point_times_s, cloud->size()))
-      result.message += "; " + std::to_string(point_times_s.size()) + " point times for " +
-                        std::to_string(cloud->size()) +
+      result.message += "; " + std::to_string(point_times_s.size()) +
+                        " point times for " + std::to_string(cloud->size()) +
                         " points, or not finite or beyond +-1 s: ignored";
   } catch (const std::exception& e) {
     // Bad data must not stop the odometry: report it and predict.
@@ -1079,27 +1119,33 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
     result.status = TrackingStatus::kConstantVelocity;
     result.degraded = true;
     result.T_world_lidar = impl_->predict(timestamp_s);
-    result.message = std::string("tracking failed: ") + e.what() +
-                     ": constant-velocity prediction";
+    result.message =
+        std::string("tracking failed: ") + e.what() + ": constant-velocity prediction";
   }
   if (!result.keyframe) {
     result.reference_keyframe = impl_->keyframe ? impl_->keyframe->id : 0;
-    result.T_keyframe_lidar = composePoses(impl_->T_world_keyframe.inverse(), result.T_world_lidar);
+    result.T_keyframe_lidar =
+        composePoses(impl_->T_world_keyframe.inverse(), result.T_world_lidar);
   }
-  result.timings.total_ms = std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+  result.timings.total_ms =
+      std::chrono::duration<double, std::milli>(Clock::now() - start).count();
   impl_->commitPose(result);
   return result;
 }
 
 OdometryFrameResult
-Odometry::skipFrame(double timestamp_s, std::size_t frame_index, const std::string& reason)
+Odometry::skipFrame(double timestamp_s,
+                    std::size_t frame_index,
+                    const std::string& reason)
 {
   impl_->checkIndex(frame_index);
   return impl_->skip(timestamp_s, frame_index, reason);
 }
 
 OdometryFrameResult
-Odometry::Impl::skip(double timestamp_s, std::size_t frame_index, const std::string& reason)
+Odometry::Impl::skip(double timestamp_s,
+                     std::size_t frame_index,
+                     const std::string& reason)
 {
   OdometryFrameResult result;
   result.frame_index = frame_index;
@@ -1108,7 +1154,8 @@ Odometry::Impl::skip(double timestamp_s, std::size_t frame_index, const std::str
   result.degraded = true;
   result.T_world_lidar = predict(timestamp_s);
   result.reference_keyframe = keyframe ? keyframe->id : 0;
-  result.T_keyframe_lidar = composePoses(T_world_keyframe.inverse(), result.T_world_lidar);
+  result.T_keyframe_lidar =
+      composePoses(T_world_keyframe.inverse(), result.T_world_lidar);
   result.message = reason + ": constant-velocity prediction";
   commitPose(result);
   return result;

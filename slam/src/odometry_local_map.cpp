@@ -5,7 +5,6 @@
 #include "odometry_local_map.h"
 
 #include <Eigen/Eigenvalues>
-
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -48,7 +47,8 @@ constexpr double kRotationLengthM = 10.0;
 std::size_t
 countInRange(const pcl::PointCloud<pcl::PointXYZI>& cloud, const RangeFilter& filter)
 {
-  return static_cast<std::size_t>(std::count_if(cloud.points.begin(), cloud.points.end(), filter));
+  return static_cast<std::size_t>(
+      std::count_if(cloud.points.begin(), cloud.points.end(), filter));
 }
 
 std::vector<int>
@@ -132,7 +132,7 @@ strideSubsample(const std::vector<int>& indices, std::size_t max_points)
 // VoxelPlaneMap
 
 VoxelPlaneMap::VoxelPlaneMap(const DenseTrackingParams& params)
-: params_(params), inv_voxel_size_(static_cast<float>(1.0 / params.map_voxel_size_m))
+    : params_(params), inv_voxel_size_(static_cast<float>(1.0 / params.map_voxel_size_m))
 {}
 
 std::uint64_t
@@ -179,7 +179,8 @@ VoxelPlaneMap::fitPlane(Voxel& voxel) const
 void
 VoxelPlaneMap::insert(const Points3f& points_world, const Eigen::Vector3f& center)
 {
-  const std::size_t max_points = static_cast<std::size_t>(params_.map_max_points_per_voxel);
+  const std::size_t max_points =
+      static_cast<std::size_t>(params_.map_max_points_per_voxel);
   std::vector<Voxel*> touched;
   for (const auto& p : points_world) {
     Voxel& voxel = voxels_[key(p)];
@@ -220,8 +221,8 @@ VoxelPlaneMap::plane(const Eigen::Vector3f& query,
     return true;
   }
   // The point may sit just off its surface's voxel: try the face neighbours.
-  static const int kFaces[6][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0},
-                                   {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+  static const int kFaces[6][3] = {
+      {1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
   float best_sq = std::numeric_limits<float>::max();
   for (const auto& f : kFaces) {
     it = voxels_.find(key(x + f[0], y + f[1], z + f[2]));
@@ -298,7 +299,8 @@ registerToMap(const Points3f& source,
     result.num_correspondences = paired;
     result.rmse_m = inliers > 0 ? std::sqrt(sum_sq / inliers) : 0.0;
     if (paired < params.min_correspondences) {
-      result.message = "dense: " + std::to_string(paired) + " points paired with map planes < " +
+      result.message = "dense: " + std::to_string(paired) +
+                       " points paired with map planes < " +
                        std::to_string(params.min_correspondences);
       return result;
     }
@@ -336,10 +338,13 @@ registerToMap(const Points3f& source,
 
   result.T_world_lidar.linear() = R;
   result.T_world_lidar.translation() = t;
-  const Eigen::Isometry3d correction = T_world_lidar_guess.inverse() * result.T_world_lidar;
+  const Eigen::Isometry3d correction =
+      T_world_lidar_guess.inverse() * result.T_world_lidar;
   const double correction_m = correction.translation().norm();
-  const double correction_deg = Eigen::AngleAxisd(correction.rotation()).angle() * 180.0 / M_PI;
-  if (correction_m > params.max_correction_m || correction_deg > params.max_correction_deg) {
+  const double correction_deg =
+      Eigen::AngleAxisd(correction.rotation()).angle() * 180.0 / M_PI;
+  if (correction_m > params.max_correction_m ||
+      correction_deg > params.max_correction_deg) {
     result.message = "dense: diverged, moved " + std::to_string(correction_m) + " m / " +
                      std::to_string(correction_deg) + " deg from its start";
     return result;

@@ -5,12 +5,10 @@
 /// degeneracy-aware point-to-plane Gauss-Newton that registers a scan to it.
 /// Plain data and free functions; not installed.
 
-#include <pcl/slam/odometry.h>
-
 #include <Eigen/Core>
 #include <Eigen/Geometry>
-
 #include <cstdint>
+#include <pcl/slam/odometry.h>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -26,11 +24,10 @@ struct RangeFilter
 {
   float min_sq = 0.0f, max_sq = 0.0f;
   RangeFilter(double min_range_m, double max_range_m)
-  : min_sq(static_cast<float>(min_range_m * min_range_m))
-  , max_sq(static_cast<float>(max_range_m * max_range_m))
+      : min_sq(static_cast<float>(min_range_m * min_range_m)),
+        max_sq(static_cast<float>(max_range_m * max_range_m))
   {}
-  bool
-  operator()(const pcl::PointXYZI& p) const
+  bool operator()(const pcl::PointXYZI& p) const
   {
     const float r_sq = p.x * p.x + p.y * p.y + p.z * p.z; // NaN/Inf fail both tests
     return r_sq >= min_sq && r_sq <= max_sq;
@@ -38,24 +35,22 @@ struct RangeFilter
 };
 
 /// \brief Number of points of \a cloud that pass \a filter.
-std::size_t
-countInRange(const pcl::PointCloud<pcl::PointXYZI>& cloud, const RangeFilter& filter);
+std::size_t countInRange(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                         const RangeFilter& filter);
 
 /// \brief Indices of one point per voxel (the first met, a real measurement) among the
 /// points passing \a filter, in input order. Open addressing: several times faster
 /// than std::unordered_set on 100k points.
-std::vector<int>
-voxelDownsampleIndices(const pcl::PointCloud<pcl::PointXYZI>& cloud,
-                       double voxel_size_m,
-                       const RangeFilter& filter);
+std::vector<int> voxelDownsampleIndices(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                                        double voxel_size_m,
+                                        const RangeFilter& filter);
 
 /// \brief The points at \a indices as plain data.
-Points3f
-toPoints(const pcl::PointCloud<pcl::PointXYZI>& cloud, const std::vector<int>& indices);
+Points3f toPoints(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                  const std::vector<int>& indices);
 
 /// \brief Every k-th index so that at most \a max_points remain (k = ceil(n / max)).
-std::vector<int>
-strideSubsample(const std::vector<int>& indices, std::size_t max_points);
+std::vector<int> strideSubsample(const std::vector<int>& indices, std::size_t max_points);
 
 /// \brief The local map: voxels of the key-frames' points in the world frame, each with
 /// a plane (centroid, unit normal) fitted when the voxel changes.
@@ -66,24 +61,16 @@ public:
 
   /// \brief Add world-frame points (up to map_max_points_per_voxel per voxel), refit the
   /// touched voxels' planes and drop voxels farther than map_radius_m from \a center.
-  void
-  insert(const Points3f& points_world, const Eigen::Vector3f& center);
+  void insert(const Points3f& points_world, const Eigen::Vector3f& center);
 
   /// \brief The plane for a query point: its own voxel's, else the nearest planar
   /// face-neighbour's. False when there is none.
-  bool
-  plane(const Eigen::Vector3f& query, Eigen::Vector3f& centroid, Eigen::Vector3f& normal) const;
+  bool plane(const Eigen::Vector3f& query,
+             Eigen::Vector3f& centroid,
+             Eigen::Vector3f& normal) const;
 
-  std::size_t
-  size() const
-  {
-    return voxels_.size();
-  }
-  bool
-  empty() const
-  {
-    return voxels_.empty();
-  }
+  std::size_t size() const { return voxels_.size(); }
+  bool empty() const { return voxels_.empty(); }
 
 private:
   struct Voxel
@@ -93,12 +80,9 @@ private:
     Eigen::Vector3f normal = Eigen::Vector3f::Zero();
     bool planar = false;
   };
-  std::uint64_t
-  key(const Eigen::Vector3f& p) const;
-  static std::uint64_t
-  key(std::int64_t x, std::int64_t y, std::int64_t z);
-  void
-  fitPlane(Voxel& voxel) const;
+  std::uint64_t key(const Eigen::Vector3f& p) const;
+  static std::uint64_t key(std::int64_t x, std::int64_t y, std::int64_t z);
+  void fitPlane(Voxel& voxel) const;
 
   DenseTrackingParams params_;
   float inv_voxel_size_;
@@ -112,7 +96,7 @@ struct DenseResult
   Eigen::Isometry3d T_world_lidar = Eigen::Isometry3d::Identity();
   int iterations = 0;
   int num_source_points = 0;
-  int num_correspondences = 0;  ///< paired in the last iteration
+  int num_correspondences = 0;   ///< paired in the last iteration
   int degenerate_directions = 0; ///< eigen-directions not updated (last iteration)
   double rmse_m = 0.0;           ///< RMS residual of the pairs within 3 kernel scales
   std::string message;
@@ -124,11 +108,10 @@ struct DenseResult
 /// left at zero along directions whose eigenvalue is below degeneracy_min_ratio of the
 /// total weight (Zhang et al., ICRA 2016), so that an unconstrained direction keeps
 /// the initial guess instead of following noise.
-DenseResult
-registerToMap(const Points3f& source,
-              const VoxelPlaneMap& map,
-              const Eigen::Isometry3d& T_world_lidar_guess,
-              const DenseTrackingParams& params);
+DenseResult registerToMap(const Points3f& source,
+                          const VoxelPlaneMap& map,
+                          const Eigen::Isometry3d& T_world_lidar_guess,
+                          const DenseTrackingParams& params);
 
 } // namespace odometry_detail
 } // namespace rast

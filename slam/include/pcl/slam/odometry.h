@@ -10,19 +10,17 @@
 /// (local BA, loop closure) never moves this frame: it corrects key-frame poses, and a
 /// frame's corrected pose is T_world_keyframe(corrected) * T_keyframe_lidar.
 
+#include <cstddef>
+#include <memory>
 #include <pcl/features/orb_raster_features.h>
 #include <pcl/features/range_raster_image.h>
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
 #include <pcl/registration/correspondence_rigid_registration.h>
 #include <pcl/segmentation/sac_ground_removal.h>
 #include <pcl/slam/deskew.h>
 #include <pcl/slam/keyframe.h>
 #include <pcl/slam/pose_io.h>
-
-#include <pcl/point_cloud.h>
-#include <pcl/point_types.h>
-
-#include <cstddef>
-#include <memory>
 #include <string>
 #include <vector>
 
@@ -40,8 +38,7 @@ enum class TrackingStatus
 };
 
 /// \brief Short name of a status ("features", "dense_fallback", ...).
-const char*
-toString(TrackingStatus status);
+const char* toString(TrackingStatus status);
 
 /// \brief Wall time of each stage of one frame, milliseconds.
 struct OdometryTimings
@@ -77,13 +74,13 @@ struct OdometryFrameResult
   KeyFrame::Ptr keyframe;
 
   bool ground_found = false;
-  int num_features = 0;   ///< ORB features of this frame
-  int num_matches = 0;    ///< descriptor matches with the reference key-frame
-  int num_inliers = 0;    ///< RANSAC inliers: "points in common" with the key-frame
-  bool refined = false;   ///< the dense refinement ran and was used
+  int num_features = 0; ///< ORB features of this frame
+  int num_matches = 0;  ///< descriptor matches with the reference key-frame
+  int num_inliers = 0;  ///< RANSAC inliers: "points in common" with the key-frame
+  bool refined = false; ///< the dense refinement ran and was used
   int dense_correspondences = 0; ///< source points paired with map planes (last run)
   int dense_degenerate_directions = 0; ///< unconstrained directions of the dense step
-  double dense_rmse_m = 0.0;     ///< RMS point-to-plane residual of the dense step
+  double dense_rmse_m = 0.0;           ///< RMS point-to-plane residual of the dense step
   /// Dense fallback against a rival optimum: features paired under its motion (0: not
   /// checked).
   int guided_pairs = 0;
@@ -170,7 +167,8 @@ struct DenseTrackingParams
   double convergence_rotation_rad = 1e-4;
   /// A direction of the 6x6 normal equations (rotations scaled by 10 m) is degenerate
   /// when its eigenvalue is below this fraction of the total weight; the update is
-  /// not applied along it (the initial guess is kept there, e.g. x/y/yaw on an open field).
+  /// not applied along it (the initial guess is kept there, e.g. x/y/yaw on an open
+  /// field).
   double degeneracy_min_ratio = 0.003;
   /// Fewer paired source points than this: failure.
   int min_correspondences = 100;
@@ -180,8 +178,7 @@ struct DenseTrackingParams
   double max_correction_deg = 5.0;
 
   /// \brief True when every member is valid; otherwise says why in *why.
-  bool
-  isValid(std::string* why = nullptr) const;
+  bool isValid(std::string* why = nullptr) const;
 };
 
 /// \brief Recovery from large motion (a sharp turn at a low frame rate) when the
@@ -223,8 +220,7 @@ struct MotionHypothesisParams
   double guided_refit_gate_m = 1.0;
 
   /// \brief True when every member is valid; otherwise says why in *why.
-  bool
-  isValid(std::string* why = nullptr) const;
+  bool isValid(std::string* why = nullptr) const;
 };
 
 /// \brief Everything tracking can be tuned with; defaults suit a car-mounted
@@ -289,8 +285,7 @@ struct OdometryParams
   double keyframe_max_rotation_deg = 20.0;
 
   /// \brief True when every member is valid; otherwise says why in *why.
-  bool
-  isValid(std::string* why = nullptr) const;
+  bool isValid(std::string* why = nullptr) const;
 };
 
 /// \brief Parameter presets for common sensors and mounts (doc/odometry.md).
@@ -315,9 +310,10 @@ struct SensorGuess
 {
   SensorPreset preset = SensorPreset::kHdl64;
   double beam_spacing_deg = 0.0; ///< median elevation gap of vertically adjacent returns
-  double vertical_span_deg = 0.0; ///< elevation range of the returns (1st-99th percentile)
-  double ground_tilt_deg = -1.0;  ///< angle of the ground plane to the x-y plane; -1: none
-  std::string reason;             ///< which rule decided
+  double vertical_span_deg =
+      0.0;                       ///< elevation range of the returns (1st-99th percentile)
+  double ground_tilt_deg = -1.0; ///< angle of the ground plane to the x-y plane; -1: none
+  std::string reason;            ///< which rule decided
 };
 
 /// \brief Guess the preset from one scan in the sensor frame: a ground plane tilted by
@@ -339,34 +335,29 @@ public:
 
   /// \brief Track one scan (LiDAR frame). Never throws on bad data: an empty or
   /// featureless cloud gives a degraded result. Frame indices must increase.
-  OdometryFrameResult
-  processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
-               double timestamp_s,
-               std::size_t frame_index);
+  OdometryFrameResult processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                                   double timestamp_s,
+                                   std::size_t frame_index);
 
   /// \brief processFrame with the points' times [s] relative to the frame time, one per
   /// point of \a cloud (ScanFrame::point_times_s; empty: none), for motion compensation
   /// (OdometryParams::deskew). Times of the wrong count are ignored, with a message.
-  OdometryFrameResult
-  processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
-               double timestamp_s,
-               std::size_t frame_index,
-               const std::vector<float>& point_times_s);
+  OdometryFrameResult processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                                   double timestamp_s,
+                                   std::size_t frame_index,
+                                   const std::vector<float>& point_times_s);
 
   /// \brief Account for a frame without a usable scan: constant-velocity
   /// prediction, status kSkipped, never a key-frame.
   OdometryFrameResult
   skipFrame(double timestamp_s, std::size_t frame_index, const std::string& reason);
 
-  const OdometryParams&
-  params() const;
+  const OdometryParams& params() const;
 
   /// \brief Number of key-frames created so far.
-  std::size_t
-  numKeyFrames() const;
+  std::size_t numKeyFrames() const;
   /// \brief Number of voxels of the local map (memory diagnostics).
-  std::size_t
-  localMapSize() const;
+  std::size_t localMapSize() const;
 
 private:
   struct Impl;
