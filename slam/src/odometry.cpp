@@ -19,7 +19,9 @@
 namespace pcl {
 namespace rast {
 
+using odometry_detail::DenseOptions;
 using odometry_detail::DenseResult;
+using odometry_detail::denseSeparation;
 using odometry_detail::Points3f;
 using odometry_detail::VoxelPlaneMap;
 
@@ -115,6 +117,67 @@ constexpr double kMinDistinctPairedRatio = 0.2;
 /// true pairs) but not under a given motion: at the start of KITTI 02 at 2 Hz (7.6 m per
 /// scan) 58 features pair at the true motion, 10-15 at 1-2 m along the road, where dense
 /// ICP pairs 395 vs 366 points.
+
+/// The firing times of one scan's points: given (a time field), or from the azimuth,
+/// then computed only for the points asked for (the non-ground points and the dense
+/// step's source), and for the whole scan only when a key-frame or the map keeps it.
+class PointTimes
+{
+public:
+  /// Times from \a given (one per point of \a cloud).
+  PointTimes(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+             const std::vector<float>& given)
+      : cloud_(cloud), given_(&given)
+  {}
+  /// Times from the azimuth (azimuthTimes).
+  PointTimes(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+             double period_s,
+             const SweepParams& sweep)
+      : cloud_(cloud), period_s_(period_s), sweep_(sweep)
+  {}
+
+  /// times[k] of point indices[k].
+  std::vector<float> of(const pcl::Indices& indices) const
+  {
+    if (!given_)
+      return all_.empty() ? azimuthTimes(cloud_, indices, period_s_, sweep_)
+                          : gather(all_, indices);
+    return gather(*given_, indices);
+  }
+  /// One per point of the cloud.
+  const std::vector<float>& all()
+  {
+    if (given_)
+      return *given_;
+    if (all_.empty())
+      all_ = azimuthTimes(cloud_, period_s_, sweep_);
+    return all_;
+  }
+
+private:
+  static std::vector<float> gather(const std::vector<float>& times,
+                                   const pcl::Indices& indices)
+  {
+    std::vector<float> out(indices.size());
+    for (std::size_t k = 0; k < indices.size(); ++k)
+      out[k] = times[static_cast<std::size_t>(indices[k])];
+    return out;
+  }
+
+  const pcl::PointCloud<pcl::PointXYZI>& cloud_;
+  const std::vector<float>* given_ = nullptr;
+  double period_s_ = 0.0;
+  SweepParams sweep_;
+  std::vector<float> all_;
+};
+
+/// Whether \a a and \a b differ by more than \a metres or \a degrees.
+bool
+moved(const Pose3d& a, const Pose3d& b, double metres, double degrees)
+{
+  const Pose3d d = a.inverse() * b;
+  return d.translation().norm() > metres || angleDeg(d) > degrees;
+}
 
 /// The motion from \a T_world_last with the features' planar part (x, y, yaw in the
 /// last scan's frame, which top-down raster features measure well) and the prior's
@@ -341,6 +404,9 @@ OdometryParams::isValid(std::string* why) const
     reason = "strong_feature_inliers must be >= min_feature_inliers";
   else if (!finitePositive(prior_gate_m) || !finitePositive(prior_gate_deg))
     reason = "prior_gate_m and prior_gate_deg must be > 0";
+  else if (!(indistinct_residual_m >= 0.0 && std::isfinite(indistinct_residual_m)))
+    reason = "indistinct_residual_m must be >= 0 and finite, got " +
+             std::to_string(indistinct_residual_m);
   else if (!finitePositive(keyframe_voxel_size_m))
     reason = "keyframe_voxel_size_m must be > 0";
   else if (keyframe_min_inliers < 0)
@@ -446,22 +512,28 @@ struct Odometry::Impl
   /// the azimuth, or none (null). \a storage holds azimuth times.
   /// Step 5b of track: where the estimated motion differs from the previous frame's (a
   /// stop, a start, a turn), the dense step's source points are compensated with it and
-  /// refined once more from the estimate. Returns the twist to compensate the whole scan
-  /// with if it is kept (key-frame, young map), when the pass was taken.
-  std::optional<Twist> secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
-                                        const std::vector<float>& times,
-                                        const std::vector<int>& source_indices,
-                                        double dt,
-                                        const Pose3d& T_motion_prior,
-                                        OdometryFrameResult& result);
+  /// refined once more from the estimate. When that is kept, \a xi_sweep becomes the
+  /// twist the scan is compensated with (key-frame, young map).
+  void secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
+                        const PointTimes& times,
+                        const std::vector<int>& source_indices,
+                        double dt,
+                        const Pose3d& T_motion_prior,
+                        OdometryFrameResult& result,
+                        Twist& xi_sweep);
+  /// The points \a indices of \a input compensated with \a xi (params.deskew.bins).
+  pcl::PointCloud<pcl::PointXYZI>::Ptr
+  deskewIndices(const pcl::PointCloud<pcl::PointXYZI>& input,
+                const PointTimes& times,
+                const pcl::Indices& indices,
+                const Twist& xi) const;
   /// Step 5c of track: the scan that started the map was used as it was (no motion
   /// before it). Once the next frame's motion is known, the local map is rebuilt from
   /// that scan compensated with it (the key-frame's own stored cloud stays as it was).
   void rebuildMapFromFirstScan(OdometryFrameResult& result);
-  const std::vector<float>* sweepTimes(const pcl::PointCloud<pcl::PointXYZI>& input,
+  std::optional<PointTimes> sweepTimes(const pcl::PointCloud<pcl::PointXYZI>& input,
                                        const std::vector<float>& given,
                                        double frame_interval_s,
-                                       std::vector<float>& storage,
                                        std::string& source) const;
   KeyFrame::Ptr makeKeyFrame(const OdometryFrameResult& result,
                              RasterFeatureSet&& features,
@@ -603,27 +675,43 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
                      " finite and in range): constant-velocity prediction";
     return result;
   }
-  // 0b. Motion compensation (deskew.h) with the previous frame's motion; every step
-  //     below, the key-frame's cloud and the local map use the compensated scan.
+  // 0b. Motion compensation (deskew.h) with the previous frame's motion. Every step
+  //     below uses compensated points: the non-ground points (raster, features) and the
+  //     dense step's source points right away, the whole scan only when a key-frame or
+  //     the local map keeps it (keptCloud below).
   auto start = Clock::now();
   const double dt =
       frameInterval(result.timestamp_s) * params.deskew.seconds_per_timestamp;
-  std::vector<float> azimuth_times;
-  const std::vector<float>* times =
-      sweepTimes(input, point_times, dt, azimuth_times, result.deskew_times);
+  std::optional<PointTimes> times =
+      sweepTimes(input, point_times, dt, result.deskew_times);
   const Pose3d T_motion_prior = T_world_last.inverse() * T_world_prior;
-  pcl::PointCloud<pcl::PointXYZI>::ConstPtr cloud = input_ptr;
+  std::optional<Twist> xi_sweep; // the motion the kept points are compensated with
   if (times && num_poses >= 2)
-    cloud = deskewCloud(input, *times, logSE3(T_motion_prior) / dt, params.deskew.bins);
+    xi_sweep = logSE3(T_motion_prior) / dt;
   result.timings.deskew_ms = msSince(start);
 
-  // 1. Ground removal (paper sec. 4), optionally levelling the non-ground cloud.
+  // 1. Ground removal (paper sec. 4), optionally levelling the non-ground cloud. On the
+  //    raw scan: the sweep's motion moves ground points along the ground plane, and
+  //    only the plane is kept.
   start = Clock::now();
-  ground.setInputCloud(cloud);
+  ground.setInputCloud(input_ptr);
   GroundRemovalResult ground_result;
   ground.segment(ground_result);
   result.ground_found = ground_result.ground_found;
   result.timings.ground_ms = msSince(start);
+  if (xi_sweep && ground_result.non_ground &&
+      ground_result.non_ground->size() == ground_result.non_ground_indices.size()) {
+    start = Clock::now();
+    auto non_ground =
+        deskewIndices(input, *times, ground_result.non_ground_indices, *xi_sweep);
+    if (ground_result.ground_found &&
+        !ground_result.T_level_lidar.isApprox(Eigen::Isometry3f::Identity())) {
+      for (auto& p : non_ground->points)
+        p.getVector3fMap() = ground_result.T_level_lidar * p.getVector3fMap();
+    }
+    ground_result.non_ground = non_ground;
+    result.timings.deskew_ms += msSince(start);
+  }
 
   // 2-3. Raster of the non-ground points and ORB features (sec. 5-6).
   auto features = std::make_shared<RasterFeatureSet>();
@@ -646,14 +734,14 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   if (!keyframe) {
     if (times) {
       first_scan = input_ptr;
-      first_times = *times;
+      first_times = times->all();
       T_world_first = result.T_world_lidar;
       t_first = result.timestamp_s;
     }
     result.status = TrackingStatus::kFirstFrame;
     result.message = "first frame: key-frame 0";
     start = Clock::now();
-    result.keyframe = makeKeyFrame(result, std::move(*features), *cloud);
+    result.keyframe = makeKeyFrame(result, std::move(*features), input);
     result.reference_keyframe = result.keyframe->id;
     result.timings.keyframe_ms = msSince(start);
     result.timings.total_ms = msSince(frame_start);
@@ -742,9 +830,16 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   if (params.registration.refine || !features_ok) {
     source_indices = odometry_detail::strideSubsample(
         odometry_detail::voxelDownsampleIndices(
-            *cloud, params.dense.source_voxel_size_m, in_range),
+            input, params.dense.source_voxel_size_m, in_range),
         static_cast<std::size_t>(params.dense.max_source_points));
-    source = odometry_detail::toPoints(*cloud, source_indices);
+    if (xi_sweep) {
+      const auto t0 = Clock::now();
+      source = odometry_detail::toPoints(
+          *deskewIndices(input, *times, source_indices, *xi_sweep));
+      result.timings.deskew_ms += msSince(t0);
+    } else {
+      source = odometry_detail::toPoints(input, source_indices);
+    }
   }
   auto keepDense = [&result](const DenseResult& dense) { keepDenseStats(dense, result); };
   if (features_ok) {
@@ -757,8 +852,15 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     result.message =
         "features: " + std::to_string(inliers) + " inliers with " + reference;
     if (params.registration.refine) {
-      DenseResult dense = registerToMap(source, map, T_world_features, params.dense);
-      if (inliers < params.strong_feature_inliers) {
+      // Along the directions the scan does not constrain (a corridor's axis, an open
+      // field's x, y and yaw) strong features set the pose; weak ones (a few posts of a
+      // guard rail, a passing car) do not, the constant-velocity prior does.
+      const bool strong = inliers >= params.strong_feature_inliers;
+      const Pose3d& T_world_anchor = strong ? T_world_features : T_world_prior;
+      const DenseOptions anchored{0.0, &T_world_anchor};
+      DenseResult dense =
+          registerToMap(source, map, T_world_features, params.dense, anchored);
+      if (!strong) {
         // Weak features: their height, roll and pitch come from max-height pixels of few
         // inliers (a 16-beam scan: decimetres off; 2 Hz: up to ~2 deg of pitch), from
         // where the dense step can settle in a wrong minimum. A second dense fit starts
@@ -768,7 +870,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
             near_prior && !params.ground.level_cloud
                 ? planarFromFeatures(T_world_last, T_world_features, T_world_prior)
                 : T_world_prior;
-        const DenseResult second = registerToMap(source, map, T_second, params.dense);
+        const DenseResult second =
+            registerToMap(source, map, T_second, params.dense, anchored);
         if (second.success &&
             (!dense.success || second.num_correspondences > dense.num_correspondences)) {
           dense = second;
@@ -781,12 +884,46 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
             result.message += " (dense from their planar part fitted better)";
           }
         }
+        // Cross-check: weak features must not drag the dense step along a direction the
+        // scan hardly constrains. Dense from the prior as well; where the scan cannot
+        // tell the two results apart, the prior's wins.
+        if (dense.success && near_prior && !T_second.isApprox(T_world_prior)) {
+          const DenseResult from_prior =
+              registerToMap(source, map, T_world_prior, params.dense, anchored);
+          // 2 cm / 0.1 deg: below the range noise a choice changes nothing.
+          if (from_prior.success &&
+              moved(dense.T_world_lidar, from_prior.T_world_lidar, 0.02, 0.1) &&
+              denseSeparation(from_prior, dense.T_world_lidar) <
+                  params.indistinct_residual_m) {
+            dense = from_prior;
+            result.degraded = true;
+            result.message +=
+                " (the scan does not tell the weak features' slide from the "
+                "prior: dense from the prior)";
+          }
+        }
       }
       keepDense(dense);
       if (dense.success) {
         result.T_world_lidar = dense.T_world_lidar;
         result.refined = true;
         result.message += "; " + dense.message;
+        // The other way round: dense ICP must not slide away from strong features
+        // along a direction where the scan hardly sees a difference (the local map's
+        // planes along a corridor, cars driving beside). There the features' planar
+        // motion stands; height, roll and pitch stay dense ICP's.
+        // A slide, not the centimetres dense ICP refines features by (their pixels).
+        if (strong && moved(dense.T_world_lidar, T_world_features, 0.1, 0.5) &&
+            denseSeparation(dense, T_world_features) < params.indistinct_residual_m) {
+          result.T_world_lidar =
+              planarFromFeatures(T_world_last, T_world_features, dense.T_world_lidar);
+          result.message +=
+              "; its slide from the features is indistinct: their planar motion kept";
+        }
+        if (dense.degenerate_directions > 0) {
+          result.degraded = true;
+          result.message += strong ? " (from the features)" : " (from the prior)";
+        }
       } else {
         result.degraded = true;
         result.message +=
@@ -911,20 +1048,22 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
 
   // 5b. Second pass of the motion compensation with the estimated motion; 5c. the local
   //     map rebuilt from the first scan, compensated, once its motion is known.
-  std::optional<Twist> xi_final;
-  if (times && num_poses >= 2 && result.refined && !source_indices.empty())
-    xi_final =
-        secondDeskewPass(input, *times, source_indices, dt, T_motion_prior, result);
+  if (xi_sweep && result.refined && !source_indices.empty())
+    secondDeskewPass(
+        input, *times, source_indices, dt, T_motion_prior, result, *xi_sweep);
   if (first_scan)
     rebuildMapFromFirstScan(result);
+  // The whole compensated scan, made once and only when a key-frame or the map keeps it.
+  pcl::PointCloud<pcl::PointXYZI>::ConstPtr kept_cloud;
   auto keptCloud = [&]() -> const pcl::PointCloud<pcl::PointXYZI>& {
-    if (xi_final) {
+    if (!kept_cloud) {
       const auto t0 = Clock::now();
-      cloud = deskewCloud(input, *times, *xi_final, params.deskew.bins);
-      xi_final.reset();
+      kept_cloud = xi_sweep
+                       ? deskewCloud(input, times->all(), *xi_sweep, params.deskew.bins)
+                       : input_ptr;
       result.timings.deskew_ms += msSince(t0);
     }
-    return *cloud;
+    return *kept_cloud;
   };
 
   // 6. Key-frame decision: the paper's rule (sec. 7.3) plus safety rules. The pose is
@@ -1005,42 +1144,54 @@ Odometry::localMapSize() const
   return impl_->map.size();
 }
 
-std::optional<Twist>
+pcl::PointCloud<pcl::PointXYZI>::Ptr
+Odometry::Impl::deskewIndices(const pcl::PointCloud<pcl::PointXYZI>& input,
+                              const PointTimes& times,
+                              const pcl::Indices& indices,
+                              const Twist& xi) const
+{
+  return deskewCloud(pcl::PointCloud<pcl::PointXYZI>(input, indices),
+                     times.of(indices),
+                     xi,
+                     params.deskew.bins);
+}
+
+void
 Odometry::Impl::secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
-                                 const std::vector<float>& times,
+                                 const PointTimes& times,
                                  const std::vector<int>& source_indices,
                                  double dt,
                                  const Pose3d& T_motion_prior,
-                                 OdometryFrameResult& result)
+                                 OdometryFrameResult& result,
+                                 Twist& xi_sweep)
 {
   const auto start = Clock::now();
   const Pose3d T_motion = T_world_last.inverse() * result.T_world_lidar;
   const Pose3d change = T_motion_prior.inverse() * T_motion;
-  std::optional<Twist> kept;
   if (change.translation().norm() > params.deskew.second_pass_translation_m ||
       angleDeg(change) > params.deskew.second_pass_rotation_deg) {
     const Twist xi = logSE3(T_motion) / dt;
-    const pcl::PointCloud<pcl::PointXYZI> raw_source(input, source_indices);
-    std::vector<float> source_times(source_indices.size());
-    for (std::size_t k = 0; k < source_indices.size(); ++k)
-      source_times[k] = times[static_cast<std::size_t>(source_indices[k])];
-    const auto again = deskewCloud(raw_source, source_times, xi, params.deskew.bins);
-    std::vector<int> all(again->size());
-    std::iota(all.begin(), all.end(), 0);
+    // The points moved by about the change of motion: the annealing starts at twice
+    // that, not at the first pass's metre-scale kernel.
+    const double start_scale_m =
+        2.0 * std::max(change.translation().norm(), params.dense.min_kernel_scale_m);
     const DenseResult dense = registerToMap(
-        odometry_detail::toPoints(*again, all), map, result.T_world_lidar, params.dense);
+        odometry_detail::toPoints(*deskewIndices(input, times, source_indices, xi)),
+        map,
+        result.T_world_lidar,
+        params.dense,
+        {start_scale_m, nullptr});
     // Kept when it pairs about as well as the first fit (a compensation that does not
     // fit the map is not the better one).
     if (dense.success &&
         dense.num_correspondences >= 0.95 * result.dense_correspondences) {
-      kept = xi;
+      xi_sweep = xi;
       keepDenseStats(dense, result);
       result.T_world_lidar = dense.T_world_lidar;
       result.deskew_second_pass = true;
     }
   }
   result.timings.deskew_ms += msSince(start);
-  return kept;
 }
 
 void
@@ -1061,27 +1212,25 @@ Odometry::Impl::rebuildMapFromFirstScan(OdometryFrameResult& result)
   first_times.clear();
 }
 
-const std::vector<float>*
+std::optional<PointTimes>
 Odometry::Impl::sweepTimes(const pcl::PointCloud<pcl::PointXYZI>& input,
                            const std::vector<float>& given,
                            double frame_interval_s,
-                           std::vector<float>& storage,
                            std::string& source) const
 {
   if (params.deskew.mode == DeskewMode::kOff)
-    return nullptr;
+    return std::nullopt;
   // Unusable given times are ignored here and reported by processFrame.
   if (usableTimes(given, input.size())) {
     source = "field";
-    return &given;
+    return PointTimes(input, given);
   }
   if (params.deskew.mode != DeskewMode::kOn)
-    return nullptr;
+    return std::nullopt;
   const double period = params.deskew.sweep_period_s > 0.0 ? params.deskew.sweep_period_s
                                                            : frame_interval_s;
-  storage = azimuthTimes(input, period, params.deskew.sweep);
   source = "azimuth";
-  return &storage;
+  return PointTimes(input, period, params.deskew.sweep);
 }
 
 OdometryFrameResult

@@ -115,6 +115,16 @@ toPoints(const pcl::PointCloud<pcl::PointXYZI>& cloud, const std::vector<int>& i
   return out;
 }
 
+Points3f
+toPoints(const pcl::PointCloud<pcl::PointXYZI>& cloud)
+{
+  Points3f out;
+  out.reserve(cloud.size());
+  for (const auto& p : cloud.points)
+    out.push_back(p.getVector3fMap());
+  return out;
+}
+
 std::vector<int>
 strideSubsample(const std::vector<int>& indices, std::size_t max_points)
 {
@@ -241,11 +251,29 @@ VoxelPlaneMap::plane(const Eigen::Vector3f& query,
 // ---------------------------------------------------------------------------
 // Point-to-plane Gauss-Newton
 
+Eigen::Matrix<double, 6, 1>
+denseTangent(const Eigen::Isometry3d& from, const Eigen::Isometry3d& to)
+{
+  const Eigen::AngleAxisd aa(to.rotation() * from.rotation().transpose());
+  Eigen::Matrix<double, 6, 1> delta;
+  delta.head<3>() = aa.angle() * aa.axis() * kRotationLengthM;
+  delta.tail<3>() = to.translation() - from.translation();
+  return delta;
+}
+
+double
+denseSeparation(const DenseResult& dense, const Eigen::Isometry3d& other)
+{
+  const Eigen::Matrix<double, 6, 1> delta = denseTangent(dense.T_world_lidar, other);
+  return std::sqrt(std::max(0.0, delta.dot(dense.information * delta)));
+}
+
 DenseResult
 registerToMap(const Points3f& source,
               const VoxelPlaneMap& map,
               const Eigen::Isometry3d& T_world_lidar_guess,
-              const DenseTrackingParams& params)
+              const DenseTrackingParams& params,
+              const DenseOptions& options)
 {
   using Vector6d = Eigen::Matrix<double, 6, 1>;
   using Matrix6d = Eigen::Matrix<double, 6, 6>;
@@ -259,7 +287,10 @@ registerToMap(const Points3f& source,
 
   Eigen::Matrix3d R = T_world_lidar_guess.rotation();
   Eigen::Vector3d t = T_world_lidar_guess.translation();
-  const double max_scale_m = params.max_correspondence_distance_m / 3.0;
+  const double max_scale_m = options.initial_kernel_scale_m > 0.0
+                                 ? std::min(options.initial_kernel_scale_m,
+                                            params.max_correspondence_distance_m / 3.0)
+                                 : params.max_correspondence_distance_m / 3.0;
   Eigen::Vector3f c, n;
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
     const double scale_m =
@@ -319,7 +350,20 @@ registerToMap(const Points3f& source,
       const Vector6d v = eig.eigenvectors().col(k);
       dx -= v * (v.dot(g) / lambda);
     }
+    if (degenerate > 0 && options.T_world_anchor) {
+      // The degenerate directions move to the anchor's value.
+      Eigen::Isometry3d T_now = Eigen::Isometry3d::Identity();
+      T_now.linear() = R;
+      T_now.translation() = t;
+      const Vector6d to_anchor = denseTangent(T_now, *options.T_world_anchor);
+      for (int k = 0; k < 6; ++k)
+        if (!(eig.eigenvalues()(k) > threshold)) {
+          const Vector6d v = eig.eigenvectors().col(k);
+          dx += v * v.dot(to_anchor);
+        }
+    }
     result.degenerate_directions = degenerate;
+    result.information = sum_w > 0.0 ? Matrix6d(H / sum_w) : Matrix6d::Zero();
     if (!dx.allFinite()) {
       result.message = "dense: non-finite update";
       return result;

@@ -48,6 +48,8 @@ std::vector<int> voxelDownsampleIndices(const pcl::PointCloud<pcl::PointXYZI>& c
 /// \brief The points at \a indices as plain data.
 Points3f toPoints(const pcl::PointCloud<pcl::PointXYZI>& cloud,
                   const std::vector<int>& indices);
+/// \brief All points of \a cloud as plain data.
+Points3f toPoints(const pcl::PointCloud<pcl::PointXYZI>& cloud);
 
 /// \brief Every k-th index so that at most \a max_points remain (k = ceil(n / max)).
 std::vector<int> strideSubsample(const std::vector<int>& indices, std::size_t max_points);
@@ -99,19 +101,47 @@ struct DenseResult
   int num_correspondences = 0;   ///< paired in the last iteration
   int degenerate_directions = 0; ///< eigen-directions not updated (last iteration)
   double rmse_m = 0.0;           ///< RMS residual of the pairs within 3 kernel scales
+  /// The normal equations of the last iteration per unit weight, H / sum(w), in the
+  /// tangent of denseTangent: delta^T information delta is the mean squared residual
+  /// a displacement delta adds, i.e. how well the scan tells two poses apart.
+  Eigen::Matrix<double, 6, 6> information = Eigen::Matrix<double, 6, 6>::Zero();
   std::string message;
 };
+
+/// \brief Options of one registerToMap call.
+struct DenseOptions
+{
+  /// > 0: the annealing starts at this kernel scale instead of at
+  /// max_correspondence_distance_m / 3; a guess already within centimetres (a second
+  /// deskew pass) then takes two or three iterations instead of five or more.
+  double initial_kernel_scale_m = 0.0;
+  /// Along the degenerate directions the result takes this pose's value (e.g. the
+  /// constant-velocity prior) instead of keeping the guess's. Null: the guess's.
+  const Eigen::Isometry3d* T_world_anchor = nullptr;
+};
+
+/// \brief The displacement from \a from to \a to in registerToMap's tangent: rotation
+/// omega (R_to = Exp(omega) R_from) times 10 m, then t_to - t_from (metres both).
+Eigen::Matrix<double, 6, 1> denseTangent(const Eigen::Isometry3d& from,
+                                         const Eigen::Isometry3d& to);
+
+/// \brief The RMS residual change [m] the scan of \a dense sees between its result and
+/// \a other: sqrt(delta^T information delta). Below the sensor noise the scan cannot
+/// tell the two poses apart.
+double denseSeparation(const DenseResult& dense, const Eigen::Isometry3d& other);
 
 /// \brief Robust point-to-plane Gauss-Newton of \a source (LiDAR frame) against \a map:
 /// minimise sum_i w(r_i) r_i^2, r_i = n_i . (T p_i - c_i) (Geman-McClure weights,
 /// annealed scale). The update is solved in the eigenbasis of the normal equations and
 /// left at zero along directions whose eigenvalue is below degeneracy_min_ratio of the
 /// total weight (Zhang et al., ICRA 2016), so that an unconstrained direction keeps
-/// the initial guess instead of following noise.
+/// the initial guess (or DenseOptions::T_world_anchor's value) instead of following
+/// noise.
 DenseResult registerToMap(const Points3f& source,
                           const VoxelPlaneMap& map,
                           const Eigen::Isometry3d& T_world_lidar_guess,
-                          const DenseTrackingParams& params);
+                          const DenseTrackingParams& params,
+                          const DenseOptions& options = {});
 
 } // namespace odometry_detail
 } // namespace rast

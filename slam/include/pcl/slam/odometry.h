@@ -264,6 +264,11 @@ struct OdometryParams
   double prior_gate_m = 1.0;
   /// ... or rotation [deg].
   double prior_gate_deg = 5.0;
+  /// Two dense results the scan cannot tell apart: their RMS point-to-plane residuals
+  /// differ by less than this [m] (about half the range noise). Where weak features
+  /// and the prior end this close, the prior wins; where dense ICP slid this
+  /// indistinctly away from strong features, the features win (doc/odometry.md).
+  double indistinct_residual_m = 0.01;
 
   // ---- motion compensation ----
   DeskewParams deskew;
