@@ -8,7 +8,10 @@
 /// (`t x y z qx qy qz qw`) holds body (LiDAR) poses and its timestamps are kept.
 /// `-raw-sweep` writes raw (motion-distorted) sweeps instead of instantaneous scans;
 /// the spin convention is documented in pcl/slam/lidar_simulator.h. `-imperfections`
-/// adds the sensor imperfections of pcl::rast::SensorImperfectionParams.
+/// adds the sensor imperfections of pcl::rast::SensorImperfectionParams. `-scene`
+/// picks the world's scene type (or `mixed`: stretches of several along the path),
+/// `-rough-ground` and `-porous-vegetation` the rough ground and porous tree crowns and
+/// hedges of pcl::rast::WorldParams.
 
 #include "cli.h"
 
@@ -35,6 +38,9 @@ run(int argc, char** argv)
   bool moving_cars = params.world.moving_cars;
   bool raw_sweep = params.raw_sweep;
   bool imperfections = params.imperfections;
+  std::string scene = pcl::rast::toString(params.world.scene);
+  bool rough_ground = params.world.rough_ground;
+  bool porous_vegetation = params.world.porous_vegetation;
 
   ArgParser args(
       "pcl_rast_simulate",
@@ -79,13 +85,26 @@ run(int argc, char** argv)
                  "outliers, mixed pixels at depth edges, intensity noise (fixed by "
                  "-seed)",
                  &imperfections);
+  args.addChoice("scene",
+                 "scene type of the world, or mixed: stretches of 150-500 m of "
+                 "different types along the path (drawn from -seed)",
+                 &scene,
+                 {"suburb", "urban", "highway", "field", "tunnel", "mixed"});
+  args.addSwitch("rough-ground",
+                 "rough ground: ~3 cm of relief, wavelengths 0.4-2 m",
+                 &rough_ground);
+  args.addSwitch("porous-vegetation",
+                 "porous tree crowns and hedges: rays stop inside at a random depth "
+                 "(mean 1 m) or pass through",
+                 &porous_vegetation);
   args.addInt("threads", "ray-casting threads (output does not depend on it)", &threads);
   if (!args.parse(argc, argv))
     return kExitOk;
 
   if (traj.empty() == path.empty())
     throw std::invalid_argument("give exactly one of -traj FILE and -path TYPE");
-  if (!traj.empty() && (args.given("frames") || args.given("speed") || args.given("laps")))
+  if (!traj.empty() &&
+      (args.given("frames") || args.given("speed") || args.given("laps")))
     throw std::invalid_argument("-frames, -speed and -laps apply to -path only");
   if (path.empty() == false && args.given("traj-frame"))
     throw std::invalid_argument("-traj-frame applies to -traj only");
@@ -101,6 +120,11 @@ run(int argc, char** argv)
   params.world.moving_cars = moving_cars;
   params.raw_sweep = raw_sweep;
   params.imperfections = imperfections;
+  params.world.mixed_scenes = scene == "mixed";
+  if (scene != "mixed")
+    params.world.scene = pcl::rast::sceneTypeFromString(scene);
+  params.world.rough_ground = rough_ground;
+  params.world.porous_vegetation = porous_vegetation;
   params.num_threads = threads;
   params.frame_period_s = 1.0 / rate_hz;
   std::string why;
@@ -130,7 +154,8 @@ run(int argc, char** argv)
     path_params.type = pcl::rast::pathTypeFromString(path);
     path_params.rate_hz = rate_hz;
     if (!(laps >= 1.0 && laps <= 100.0))
-      throw std::invalid_argument("-laps must be in [1, 100], got " + std::to_string(laps));
+      throw std::invalid_argument("-laps must be in [1, 100], got " +
+                                  std::to_string(laps));
     path_params.revisit_fraction = laps - 1.0;
     if (path_params.type == pcl::rast::PathType::kStraight && args.given("laps"))
       throw std::invalid_argument("-laps applies to -path loop and eight only");
