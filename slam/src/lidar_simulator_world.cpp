@@ -234,7 +234,7 @@ struct SceneStretch
 
 /// Deterministic value noise of a few centimetres (rough ground): three octaves
 /// (wavelengths 1.6, 0.8, 0.4 m) of smoothstep-interpolated lattice values drawn from
-/// the seed, summed once into a seamless 51.2 m tile of 0.1 m texels and scaled to the
+/// the seed, summed once into a seamless 25.6 m tile of 0.1 m texels and scaled to the
 /// wanted std; queries interpolate the tile bilinearly (cheap inside the ray caster).
 class GroundRoughness
 {
@@ -297,7 +297,7 @@ public:
   double bound() const { return bound_m_; }
 
 private:
-  static constexpr int kTexels = 512;   ///< per tile side (a power of two)
+  static constexpr int kTexels = 256;   ///< per tile side (a power of two; 256 KB)
   static constexpr double kTexel = 0.1; ///< m
   std::vector<float> tile_;
   double bound_m_ = 0.0;
@@ -499,10 +499,13 @@ struct SimulatedWorld::Impl
                    double t_max,
                    double& t,
                    double& cos_inc) const;
-  /// The rough ground's crossing near the smooth ground's at \a t (refined in place).
+  /// The rough ground's crossing near the smooth ground's at \a t (refined in place);
+  /// (gx, gy): in the smooth ground's gradient there, out the rough ground's.
   void refineOnRoughGround(const Eigen::Vector3d& o,
                            const Eigen::Vector3d& d,
-                           double& t) const;
+                           double& t,
+                           double& gx,
+                           double& gy) const;
   /// Moving-car boxes at time t.
   std::vector<Primitive> movingCarBoxes(double time_s) const;
   /// Both castRays: ray r starts at origins[r] (kOwnOrigins) or all at origins[0].
@@ -1365,11 +1368,9 @@ SimulatedWorld::Impl::groundHit(const Eigen::Vector3d& o,
     const double df = d.z() - gx * d.x() - gy * d.y();
     if (std::abs(f) < 5e-4) {
       if (params.rough_ground)
-        refineOnRoughGround(o, d, t);
+        refineOnRoughGround(o, d, t, gx, gy);
       if (t <= 0.0 || t >= t_max)
         return false;
-      if (params.rough_ground)
-        groundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
       const Eigen::Vector3d n(-gx, -gy, 1.0);
       cos_inc = std::abs(n.dot(d)) / n.norm();
       return true;
@@ -1405,12 +1406,12 @@ SimulatedWorld::Impl::marchGround(const Eigen::Vector3d& o,
       (f(mid) > 0.0 ? t_lo : t_hi) = mid;
     }
     t = 0.5 * (t_lo + t_hi);
+    double gx, gy;
+    smoothGroundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
     if (params.rough_ground)
-      refineOnRoughGround(o, d, t);
+      refineOnRoughGround(o, d, t, gx, gy);
     if (t <= 0.0 || t >= t_max)
       return false;
-    double gx, gy;
-    groundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
     const Eigen::Vector3d n(-gx, -gy, 1.0);
     cos_inc = std::abs(n.dot(d)) / n.norm();
     return true;
@@ -1421,7 +1422,9 @@ SimulatedWorld::Impl::marchGround(const Eigen::Vector3d& o,
 void
 SimulatedWorld::Impl::refineOnRoughGround(const Eigen::Vector3d& o,
                                           const Eigen::Vector3d& d,
-                                          double& t) const
+                                          double& t,
+                                          double& gx,
+                                          double& gy) const
 {
   // Safeguarded Newton (rtsafe, Numerical Recipes 9.4) on f(t) = o_z + t d_z - ground(t),
   // ground = smooth + relief. The relief is bounded by b, so f changes sign in [t - b /
@@ -1429,16 +1432,17 @@ SimulatedWorld::Impl::refineOnRoughGround(const Eigen::Vector3d& o,
   // there): Newton steps with the full slope while they stay inside that shrinking
   // bracket, bisection otherwise. Steep rays take 2-3 steps; grazing rays, where Newton
   // on the relief alone would wander off, still converge.
-  double gx, gy;
-  smoothGroundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
   const double df_smooth = std::min(d.z() - gx * d.x() - gy * d.y(), -1e-3);
   const double reach = 1.05 * roughness.bound() / -df_smooth;
   double lo = std::max(0.0, t - reach), hi = t + reach;
   // At most 4 steps: by then grazing rays are within a few mm of a crossing (the
-  // relief's first and last crossings differ by more than that anyway).
+  // relief's first and last crossings differ by more than that anyway). The first
+  // needs only the relief: t is on the smooth ground.
   for (int it = 0; it < 4; ++it) {
-    const double f =
-        o.z() + t * d.z() - groundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
+    const double x = o.x() + t * d.x(), y = o.y() + t * d.y();
+    const double ground = it == 0 ? o.z() + t * d.z() + roughness.at(x, y, &gx, &gy)
+                                  : groundAt(x, y, &gx, &gy);
+    const double f = o.z() + t * d.z() - ground;
     if (std::abs(f) < 2e-3 || hi - lo < 2e-3)
       return;
     (f > 0.0 ? lo : hi) = t;
