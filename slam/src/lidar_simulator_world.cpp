@@ -219,11 +219,6 @@ struct Grid2
   std::size_t index(int i, int j) const { return static_cast<std::size_t>(j) * nx + i; }
 };
 
-struct PathSample
-{
-  double x, y, ground_z, heading, s;
-};
-
 /// A stretch of the path of one scene type, from arc length s_begin to the next
 /// stretch's.
 struct SceneStretch
@@ -301,6 +296,11 @@ private:
   static constexpr double kTexel = 0.1; ///< m
   std::vector<float> tile_;
   double bound_m_ = 0.0;
+};
+
+struct PathSample
+{
+  double x, y, ground_z, heading, s;
 };
 
 struct MovingCar
@@ -475,6 +475,20 @@ struct SimulatedWorld::Impl
                   double t_stop_max,
                   double& t,
                   double& cos_inc) const;
+  /// Ground crossing of a ray the Newton steps missed (terrain with embankments):
+  /// march in 2 m steps to the first crossing, then refine.
+  bool marchGround(const Eigen::Vector3d& o,
+                   const Eigen::Vector3d& d,
+                   double t_max,
+                   double& t,
+                   double& cos_inc) const;
+  /// The rough ground's crossing near the smooth ground's at \a t (refined in place);
+  /// (gx, gy): in the smooth ground's gradient there, out the rough ground's.
+  void refineOnRoughGround(const Eigen::Vector3d& o,
+                           const Eigen::Vector3d& d,
+                           double& t,
+                           double& gx,
+                           double& gy) const;
   double distanceAt(double x, double y) const;
   float headingAt(double x, double y) const
   {
@@ -492,20 +506,6 @@ struct SimulatedWorld::Impl
                  bool march,
                  double& t,
                  double& cos_inc) const;
-  /// Ground crossing of a ray the Newton steps missed (terrain with embankments):
-  /// march in 2 m steps to the first crossing, then refine.
-  bool marchGround(const Eigen::Vector3d& o,
-                   const Eigen::Vector3d& d,
-                   double t_max,
-                   double& t,
-                   double& cos_inc) const;
-  /// The rough ground's crossing near the smooth ground's at \a t (refined in place);
-  /// (gx, gy): in the smooth ground's gradient there, out the rough ground's.
-  void refineOnRoughGround(const Eigen::Vector3d& o,
-                           const Eigen::Vector3d& d,
-                           double& t,
-                           double& gx,
-                           double& gy) const;
   /// Moving-car boxes at time t.
   std::vector<Primitive> movingCarBoxes(double time_s) const;
   /// Both castRays: ray r starts at origins[r] (kOwnOrigins) or all at origins[0].
