@@ -2,16 +2,17 @@
 /// \brief pcl_rast_simulate: write a simulated LiDAR sequence (KITTI layout) along a
 /// trajectory file or a generated path.
 ///
+/// The world: `-scene` picks its scene type (or `mixed`: stretches of several along the
+/// path), `-rough-ground` and `-porous-vegetation` the rough ground and porous tree
+/// crowns and hedges of pcl::rast::WorldParams.
+///
 /// Trajectory files: a KITTI-format file (12 numbers per line) is read as KITTI
 /// camera-0 ground truth (e.g. ../shared/data/kitti-gt-poses/00.txt) and converted to
 /// LiDAR poses with the KITTI axis change, unless `-traj-frame lidar`; a TUM file
 /// (`t x y z qx qy qz qw`) holds body (LiDAR) poses and its timestamps are kept.
 /// `-raw-sweep` writes raw (motion-distorted) sweeps instead of instantaneous scans;
 /// the spin convention is documented in pcl/slam/lidar_simulator.h. `-imperfections`
-/// adds the sensor imperfections of pcl::rast::SensorImperfectionParams. `-scene`
-/// picks the world's scene type (or `mixed`: stretches of several along the path),
-/// `-rough-ground` and `-porous-vegetation` the rough ground and porous tree crowns and
-/// hedges of pcl::rast::WorldParams.
+/// adds the sensor imperfections of pcl::rast::SensorImperfectionParams.
 
 #include "cli.h"
 
@@ -103,8 +104,7 @@ run(int argc, char** argv)
 
   if (traj.empty() == path.empty())
     throw std::invalid_argument("give exactly one of -traj FILE and -path TYPE");
-  if (!traj.empty() &&
-      (args.given("frames") || args.given("speed") || args.given("laps")))
+  if (!traj.empty() && (args.given("frames") || args.given("speed") || args.given("laps")))
     throw std::invalid_argument("-frames, -speed and -laps apply to -path only");
   if (path.empty() == false && args.given("traj-frame"))
     throw std::invalid_argument("-traj-frame applies to -traj only");
@@ -154,8 +154,7 @@ run(int argc, char** argv)
     path_params.type = pcl::rast::pathTypeFromString(path);
     path_params.rate_hz = rate_hz;
     if (!(laps >= 1.0 && laps <= 100.0))
-      throw std::invalid_argument("-laps must be in [1, 100], got " +
-                                  std::to_string(laps));
+      throw std::invalid_argument("-laps must be in [1, 100], got " + std::to_string(laps));
     path_params.revisit_fraction = laps - 1.0;
     if (path_params.type == pcl::rast::PathType::kStraight && args.given("laps"))
       throw std::invalid_argument("-laps applies to -path loop and eight only");

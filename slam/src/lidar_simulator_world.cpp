@@ -3,14 +3,14 @@
 /// casting against it (ground height field + analytic primitives in a 2D grid), with
 /// scene types along the path, optional rough ground and porous vegetation.
 
-#include "simulator_hash.h"
-
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
 #include <limits>
 #include <pcl/slam/lidar_simulator.h>
+
+#include "simulator_hash.h"
 #include <queue>
 #include <sstream>
 #include <stdexcept>
@@ -1522,12 +1522,6 @@ SimulatedWorld::distanceToPath(double x, double y) const
   return impl_->distanceAt(x, y);
 }
 
-std::size_t
-SimulatedWorld::numPrimitives() const
-{
-  return impl_->prims.size();
-}
-
 SceneType
 SimulatedWorld::sceneAt(double x, double y) const
 {
@@ -1550,6 +1544,12 @@ double
 SimulatedWorld::pathLength() const
 {
   return impl_->path.back().s;
+}
+
+std::size_t
+SimulatedWorld::numPrimitives() const
+{
+  return impl_->prims.size();
 }
 
 bool

@@ -14,7 +14,6 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
-#include <memory>
 #include <numeric>
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
@@ -1211,6 +1210,35 @@ TEST(LidarSimulator, ImperfectionsIntensityNoise)
   EXPECT_NEAR(stddev(ratio), 0.1, 0.01);
 }
 
+// ---- KITTI ground truth as the trajectory ----
+
+TEST(LidarSimulator, DrivesKittiGroundTruth)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  const auto gt =
+      pcl::rast::readTrajectory((data / "kitti-gt-poses" / "00.txt").string());
+  ASSERT_GT(gt.poses.size(), 200u);
+  const PoseVector cam(gt.poses.begin(), gt.poses.begin() + 200);
+  const PoseVector lidar =
+      pcl::rast::cameraToLidarPoses(cam, pcl::rast::kittiAxisChangeCamLidar());
+  LidarSimulator sim(makeParams(SensorModel::kHdl64), lidar);
+  EXPECT_GT(sim.world().numPrimitives(), 100u);
+  // The LiDAR rides ~1.73 m above the ground along the whole drive.
+  for (std::size_t i = 0; i < lidar.size(); i += 20) {
+    const Eigen::Vector3d t = lidar[i].translation();
+    EXPECT_NEAR(t.z() - sim.world().groundHeight(t.x(), t.y()), 1.73, 0.3) << i;
+  }
+  Cloud cloud;
+  sim.simulateFrame(100, cloud);
+  EXPECT_GT(cloud.size(), 60000u);
+  Cloud g_i, a_i, g_j, a_j;
+  worldPoints(sim, 100, g_i, a_i);
+  worldPoints(sim, 104, g_j, a_j);
+  std::size_t used = 0;
+  EXPECT_LT(medianNearest(a_i, a_j, lidar[100].translation(), 30.0, &used), 0.1);
+  EXPECT_GT(used, 2000u);
+}
+
 // ---- scene types, rough ground, porous vegetation ----
 
 using pcl::rast::SceneType;
@@ -1678,35 +1706,6 @@ TEST(LidarSimulator, PorousFramesIndependentOfThreads)
   three.simulateFrame(40, c);
   EXPECT_TRUE(sameCloud(a, b));
   EXPECT_TRUE(sameCloud(a, c));
-}
-
-// ---- KITTI ground truth as the trajectory ----
-
-TEST(LidarSimulator, DrivesKittiGroundTruth)
-{
-  PCL_RAST_REQUIRE_SHARED_DATA(data);
-  const auto gt =
-      pcl::rast::readTrajectory((data / "kitti-gt-poses" / "00.txt").string());
-  ASSERT_GT(gt.poses.size(), 200u);
-  const PoseVector cam(gt.poses.begin(), gt.poses.begin() + 200);
-  const PoseVector lidar =
-      pcl::rast::cameraToLidarPoses(cam, pcl::rast::kittiAxisChangeCamLidar());
-  LidarSimulator sim(makeParams(SensorModel::kHdl64), lidar);
-  EXPECT_GT(sim.world().numPrimitives(), 100u);
-  // The LiDAR rides ~1.73 m above the ground along the whole drive.
-  for (std::size_t i = 0; i < lidar.size(); i += 20) {
-    const Eigen::Vector3d t = lidar[i].translation();
-    EXPECT_NEAR(t.z() - sim.world().groundHeight(t.x(), t.y()), 1.73, 0.3) << i;
-  }
-  Cloud cloud;
-  sim.simulateFrame(100, cloud);
-  EXPECT_GT(cloud.size(), 60000u);
-  Cloud g_i, a_i, g_j, a_j;
-  worldPoints(sim, 100, g_i, a_i);
-  worldPoints(sim, 104, g_j, a_j);
-  std::size_t used = 0;
-  EXPECT_LT(medianNearest(a_i, a_j, lidar[100].translation(), 30.0, &used), 0.1);
-  EXPECT_GT(used, 2000u);
 }
 
 } // namespace

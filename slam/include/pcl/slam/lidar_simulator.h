@@ -137,8 +137,7 @@ struct PathParams
   double rate_hz = 10.0;              ///< frames per second
   double height_m = 1.73;             ///< body origin above the ground
   double elevation_amplitude_m = 2.0; ///< gentle hills: +- this over ~300 m
-  double revisit_fraction =
-      0.15; ///< loop/eight: extra laps driven after the first (0.15: 1.15 laps)
+  double revisit_fraction = 0.15;     ///< loop/eight: extra laps driven after the first (0.15: 1.15 laps)
 
   /// \brief True when every value is usable; otherwise \a why says which is not.
   bool isValid(std::string* why = nullptr) const;
@@ -227,8 +226,6 @@ public:
   /// \brief Horizontal distance from (x, y) to the nearest path sample (2 m grid,
   /// accurate to ~1.5 m; exact path samples are every <= 1 m).
   double distanceToPath(double x, double y) const;
-  /// \brief Number of static primitives.
-  std::size_t numPrimitives() const;
   /// \brief Scene type at (x, y): that of the nearest path sample (2 m grid).
   SceneType sceneAt(double x, double y) const;
   /// \brief Scene type at arc length \a s_m along the path (clamped to the path). A
@@ -236,6 +233,8 @@ public:
   SceneType sceneAtArcLength(double s_m) const;
   /// \brief Length of the path the world was built around (arc length, horizontal).
   double pathLength() const;
+  /// \brief Number of static primitives.
+  std::size_t numPrimitives() const;
 
   /// \brief Cast rays from \a origin along unit directions \a dirs (world frame)
   /// at time \a time_s (moving cars). hits[k].range_m <= 0 means no return.
