@@ -1127,7 +1127,8 @@ SimulatedWorld::Impl::placeSceneObjects(const ForLots& forLots, const Keep& keep
     }
   };
   // A box along the road whose inner face is `offset` beside the path sample on
-  // `side` (+1 left, -1 right), `along` ahead of it, heights relative to the ground.
+  // `side` (+1 left, -1 right), `along` ahead of it, heights relative to the smooth
+  // ground (long structures do not follow the few cm of rough relief).
   auto besideRoad = [&](const PathSample& ps,
                         double side,
                         double offset,
@@ -1140,7 +1141,7 @@ SimulatedWorld::Impl::placeSceneObjects(const ForLots& forLots, const Keep& keep
     const double c = std::cos(ps.heading), s = std::sin(ps.heading);
     const double lateral = side * (offset + 0.5 * depth);
     const double x = ps.x - lateral * s + along * c, y = ps.y + lateral * c + along * s;
-    const double g = groundAt(x, y);
+    const double g = smoothGroundAt(x, y);
     return makeBox(x, y, g + z_lo, g + z_hi, length, depth, ps.heading, reflectivity);
   };
 
@@ -1175,8 +1176,10 @@ SimulatedWorld::Impl::placeSceneObjects(const ForLots& forLots, const Keep& keep
 
   // Tunnel: per stretch two smooth walls 0.8-2 m outside the corridor, 5-7 m tall, and
   // a ceiling over part of it (70 % of the stretches).
+  // 10 m segments: fewer boxes per ray-grid cell (every ray in a tunnel is near them).
+  const double tunnel_seg = 10.0;
   forSegments(
-      24, SceneType::kTunnel, 6.0, [&](Rng&, const PathSample& ps, std::size_t k) {
+      24, SceneType::kTunnel, tunnel_seg, [&](Rng&, const PathSample& ps, std::size_t k) {
         const std::uint32_t st = sample_stretch[k];
         Rng srng(hashOf(seed, 203, st));
         const double offset = corridor + srng.uniform(0.8, 2.0);
@@ -1188,14 +1191,15 @@ SimulatedWorld::Impl::placeSceneObjects(const ForLots& forLots, const Keep& keep
         const double roof_a = begin + (end - begin) * srng.uniform(0.0, 0.3);
         const double roof_b = begin + (end - begin) * srng.uniform(0.6, 1.0);
         for (const double side : {-1.0, 1.0})
-          keep(besideRoad(ps, side, offset, 0.5, 6.3, -0.5, height, 0.35f), -1.5);
+          keep(besideRoad(ps, side, offset, 0.5, tunnel_seg + 0.3, -0.5, height, 0.35f),
+               -1.5);
         if (roofed && ps.s >= roof_a && ps.s <= roof_b) {
-          const double g = groundAt(ps.x, ps.y);
+          const double g = smoothGroundAt(ps.x, ps.y);
           prims.push_back(makeBox(ps.x,
                                   ps.y,
                                   g + height,
                                   g + height + 0.4,
-                                  6.3,
+                                  tunnel_seg + 0.3,
                                   2.0 * offset + 1.0,
                                   ps.heading,
                                   0.3f));
@@ -1260,9 +1264,14 @@ SimulatedWorld::Impl::buildRayGrid()
   const std::size_t n = static_cast<std::size_t>(g.nx) * g.ny;
   std::vector<std::uint32_t> count(n + 1, 0);
   auto cellsOf = [&](const Primitive& p, auto&& visit) {
-    const double r = p.footprintRadius();
-    for (int j = g.iy(p.cy - r); j <= g.iy(p.cy + r); ++j)
-      for (int i = g.ix(p.cx - r); i <= g.ix(p.cx + r); ++i)
+    // The footprint's bounding box: for a box its rotated rectangle's, much tighter
+    // than the enclosing circle for long walls.
+    const double rx = p.kind == Kind::kBox ? std::abs(p.c) * p.hx + std::abs(p.s) * p.hy
+                                           : p.footprintRadius();
+    const double ry = p.kind == Kind::kBox ? std::abs(p.s) * p.hx + std::abs(p.c) * p.hy
+                                           : p.footprintRadius();
+    for (int j = g.iy(p.cy - ry); j <= g.iy(p.cy + ry); ++j)
+      for (int i = g.ix(p.cx - rx); i <= g.ix(p.cx + rx); ++i)
         visit(g.index(i, j));
   };
   for (const auto& p : prims)
@@ -1392,20 +1401,30 @@ SimulatedWorld::Impl::marchGround(const Eigen::Vector3d& o,
   auto f = [&](double tt) {
     return o.z() + tt * d.z() - smoothGroundAt(o.x() + tt * d.x(), o.y() + tt * d.y());
   };
-  if (f(0.0) <= 0.0)
+  // 8 m steps up to 80 m (embankments rise 3-6 m over 6-12 m and end within ~70 m of
+  // the road), bisection down to 5 cm, then the secant: the ground is bilinear
+  // between 4 m nodes, so nearly linear along that little of the ray.
+  const double step = 8.0, t_end = std::min(t_max, 80.0);
+  double t_lo = 0.0, f_lo = f(0.0);
+  if (f_lo <= 0.0)
     return false;
-  // 4 m steps (the ground nodes' spacing) up to 80 m: embankments end within ~70 m
-  // of the road.
-  const double step = 4.0, t_end = std::min(t_max, 80.0);
-  double t_lo = 0.0;
   for (double t_hi = step; t_lo < t_end; t_lo = t_hi, t_hi += step) {
-    if (f(t_hi) > 0.0)
+    double f_hi = f(t_hi);
+    if (f_hi > 0.0) {
+      f_lo = f_hi;
       continue;
-    for (int it = 0; it < 30 && t_hi - t_lo > 1e-4; ++it) { // bisection
-      const double mid = 0.5 * (t_lo + t_hi);
-      (f(mid) > 0.0 ? t_lo : t_hi) = mid;
     }
-    t = 0.5 * (t_lo + t_hi);
+    while (t_hi - t_lo > 0.05) {
+      const double mid = 0.5 * (t_lo + t_hi), f_mid = f(mid);
+      if (f_mid > 0.0) {
+        t_lo = mid;
+        f_lo = f_mid;
+      } else {
+        t_hi = mid;
+        f_hi = f_mid;
+      }
+    }
+    t = t_lo + (t_hi - t_lo) * f_lo / (f_lo - f_hi);
     double gx, gy;
     smoothGroundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
     if (params.rough_ground)
