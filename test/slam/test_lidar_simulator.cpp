@@ -1585,6 +1585,52 @@ TEST(LidarSimulator, MixedScenesAlongALongDrive)
   }
 }
 
+/// Horizontal distance from \a p to the polyline through the poses of \a path.
+double
+distanceToPolyline(const PoseVector& path, const Eigen::Vector2d& p)
+{
+  double best = 1e9;
+  for (std::size_t i = 0; i + 1 < path.size(); ++i) {
+    const Eigen::Vector2d a = path[i].translation().head<2>();
+    const Eigen::Vector2d ab = path[i + 1].translation().head<2>() - a;
+    const double f = ab.squaredNorm() > 0
+                         ? std::clamp((p - a).dot(ab) / ab.squaredNorm(), 0.0, 1.0)
+                         : 0.0;
+    best = std::min(best, (a + f * ab - p).norm());
+  }
+  return best;
+}
+
+TEST(LidarSimulator, SceneCorridorsClearOnEveryPass)
+{
+  // Every scene on the figure eight (crossing itself): no non-ground point within 2 m
+  // of the path up to 4 m above the ground (tunnel ceilings are higher).
+  const PoseVector path = makePath(PathType::kFigureEight, 250);
+  for (auto scene : {SceneType::kUrbanCanyon,
+                     SceneType::kHighway,
+                     SceneType::kOpenField,
+                     SceneType::kTunnel}) {
+    SCOPED_TRACE(pcl::rast::toString(scene));
+    LidarSimulatorParams p = makeParams(SensorModel::kVlp16);
+    p.world.scene = scene;
+    p.world.porous_vegetation = true;
+    LidarSimulator sim(p, path);
+    std::size_t checked = 0;
+    for (std::size_t i = 0; i < path.size(); i += 25) {
+      Cloud ground, above;
+      worldPoints(sim, i, ground, above);
+      for (const auto& q : above) {
+        if (q.z - sim.world().groundHeight(q.x, q.y) > 4.0)
+          continue;
+        ++checked;
+        ASSERT_GT(distanceToPolyline(path, Eigen::Vector2d(q.x, q.y)), 2.0)
+            << "frame " << i << " point " << q.x << " " << q.y << " " << q.z;
+      }
+    }
+    EXPECT_GT(checked, 100u);
+  }
+}
+
 TEST(LidarSimulator, RoughGroundIsRoughAndAlwaysHit)
 {
   // Only ground: no objects at all.
