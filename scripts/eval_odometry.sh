@@ -17,6 +17,9 @@
 #   os0-128 to the odometry). Prints the settings, one table row per sequence (with the
 #   largest per-frame error of the relative motion, "max_jump_m"), and writes
 #   OUT_DIR/summary.tsv. Every figure it prints is simulated.
+#   The realistic world is harder too: mixed scenes along each drive (suburb, urban
+#   canyon, highway, open field, tunnel in 150-500 m stretches), rough ground and
+#   porous vegetation; -c keeps the clean suburb.
 set -euo pipefail
 
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -42,7 +45,7 @@ while getopts "b:o:s:f:n:e:S:r:ckh" opt; do
     r) seed="$OPTARG" ;;
     c) clean=1 ;;
     k) keep=1 ;;
-    h) sed -n '2,19p' "$0"; exit 0 ;;
+    h) sed -n '2,/^set -euo/{/^set -euo/d;p}' "$0"; exit 0 ;;
     *) exit 1 ;;
   esac
 done
@@ -61,6 +64,10 @@ else
   world=(-seed "$seed" -raw-sweep -moving-cars -imperfections -format pcd)
   settings="realistic: raw sweeps (PCD time field), moving cars, sensor imperfections, seed $seed"
   (( seed < 100 )) && settings="$settings (a TUNING seed: do not report)"
+fi
+if (( ! clean )); then
+  world+=(-scene mixed -rough-ground -porous-vegetation)
+  settings="$settings; world: mixed scenes, rough ground, porous vegetation"
 fi
 echo "eval_odometry (simulated): $settings; sensor $sensor; frames $first+$frames every $every;" \
      "odometry flags: ${*:-none}"

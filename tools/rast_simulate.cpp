@@ -2,6 +2,10 @@
 /// \brief pcl_rast_simulate: write a simulated LiDAR sequence (KITTI layout) along a
 /// trajectory file or a generated path.
 ///
+/// The world: `-scene` picks its scene type (or `mixed`: stretches of several along the
+/// path), `-rough-ground` and `-porous-vegetation` the rough ground and porous tree
+/// crowns and hedges of pcl::rast::WorldParams.
+///
 /// Trajectory files: a KITTI-format file (12 numbers per line) is read as KITTI
 /// camera-0 ground truth (e.g. ../shared/data/kitti-gt-poses/00.txt) and converted to
 /// LiDAR poses with the KITTI axis change, unless `-traj-frame lidar`; a TUM file
@@ -35,6 +39,9 @@ run(int argc, char** argv)
   bool moving_cars = params.world.moving_cars;
   bool raw_sweep = params.raw_sweep;
   bool imperfections = params.imperfections;
+  std::string scene = pcl::rast::toString(params.world.scene);
+  bool rough_ground = params.world.rough_ground;
+  bool porous_vegetation = params.world.porous_vegetation;
 
   ArgParser args(
       "pcl_rast_simulate",
@@ -79,6 +86,18 @@ run(int argc, char** argv)
                  "outliers, mixed pixels at depth edges, intensity noise (fixed by "
                  "-seed)",
                  &imperfections);
+  args.addChoice("scene",
+                 "scene type of the world, or mixed: stretches of 150-500 m of "
+                 "different types along the path (drawn from -seed)",
+                 &scene,
+                 {"suburb", "urban", "highway", "field", "tunnel", "mixed"});
+  args.addSwitch("rough-ground",
+                 "rough ground: ~3 cm of relief, wavelengths 0.4-2 m",
+                 &rough_ground);
+  args.addSwitch("porous-vegetation",
+                 "porous tree crowns and hedges: rays stop inside at a random depth "
+                 "(mean 1 m) or pass through",
+                 &porous_vegetation);
   args.addInt("threads", "ray-casting threads (output does not depend on it)", &threads);
   if (!args.parse(argc, argv))
     return kExitOk;
@@ -101,6 +120,11 @@ run(int argc, char** argv)
   params.world.moving_cars = moving_cars;
   params.raw_sweep = raw_sweep;
   params.imperfections = imperfections;
+  params.world.mixed_scenes = scene == "mixed";
+  if (scene != "mixed")
+    params.world.scene = pcl::rast::sceneTypeFromString(scene);
+  params.world.rough_ground = rough_ground;
+  params.world.porous_vegetation = porous_vegetation;
   params.num_threads = threads;
   params.frame_period_s = 1.0 / rate_hz;
   std::string why;

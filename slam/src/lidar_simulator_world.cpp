@@ -1,8 +1,10 @@
 /// \file lidar_simulator_world.cpp
 /// \brief SimulatedWorld: procedural world generation around a trajectory and ray
-/// casting against it (ground height field + analytic primitives in a 2D grid).
+/// casting against it (ground height field + analytic primitives in a 2D grid), with
+/// scene types along the path, optional rough ground and porous vegetation.
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -62,6 +64,7 @@ struct Primitive
 {
   Kind kind = Kind::kBox;
   float reflectivity = 0.3f;
+  float mean_free_path = 0.0f; ///< > 0: porous (vegetation), rays stop inside
   double cx = 0, cy = 0, cz = 0;
   double hx = 0, hy = 0, hz = 0;
   double c = 1, s = 0; // cos / sin of yaw (boxes)
@@ -95,7 +98,8 @@ makeBox(double cx,
   return p;
 }
 
-/// Ray-primitive intersection: entry distance t in (t_min, t_max) and |cos incidence|.
+/// Ray-primitive intersection: entry distance t in (t_min, t_max) and |cos incidence|;
+/// the exit distance in \a t_exit when asked (boxes and ellipsoids only).
 bool
 intersect(const Primitive& p,
           const Eigen::Vector3d& o,
@@ -103,7 +107,8 @@ intersect(const Primitive& p,
           double t_min,
           double t_max,
           double& t_hit,
-          double& cos_inc)
+          double& cos_inc,
+          double* t_exit = nullptr)
 {
   const double ox = o.x() - p.cx, oy = o.y() - p.cy, oz = o.z() - p.cz;
   switch (p.kind) {
@@ -136,6 +141,8 @@ intersect(const Primitive& p,
       return false;
     t_hit = t0;
     cos_inc = std::abs(ld[axis]);
+    if (t_exit)
+      *t_exit = t1;
     return true;
   }
   case Kind::kCylinder: {
@@ -182,6 +189,8 @@ intersect(const Primitive& p,
     const double t = (-b - std::sqrt(disc)) / a;
     if (t <= t_min || t >= t_max)
       return false;
+    if (t_exit)
+      *t_exit = (-b + std::sqrt(disc)) / a;
     Eigen::Vector3d n((ox + t * d.x()) * sx * sx,
                       (oy + t * d.y()) * sx * sx,
                       (oz + t * d.z()) * sz * sz);
@@ -210,6 +219,85 @@ struct Grid2
   std::size_t index(int i, int j) const { return static_cast<std::size_t>(j) * nx + i; }
 };
 
+/// A stretch of the path of one scene type, from arc length s_begin to the next
+/// stretch's.
+struct SceneStretch
+{
+  double s_begin;
+  SceneType type;
+};
+
+/// Deterministic value noise of a few centimetres (rough ground): three octaves
+/// (wavelengths 1.6, 0.8, 0.4 m) of smoothstep-interpolated lattice values drawn from
+/// the seed, summed once into a seamless 25.6 m tile of 0.1 m texels and scaled to the
+/// wanted std; queries interpolate the tile bilinearly (cheap inside the ray caster).
+class GroundRoughness
+{
+public:
+  GroundRoughness() = default;
+  GroundRoughness(std::uint64_t seed, double std_m)
+  {
+    Rng rng(seed);
+    std::vector<double> lattice(128 * 128);
+    for (auto& v : lattice) // a sum of uniforms: roughly gaussian, bounded by +-1
+      v = (rng.uniform() + rng.uniform() + rng.uniform() - 1.5) / 1.5;
+    const double wavelengths[3] = {1.6, 0.8, 0.4}, weights[3] = {1.0, 0.6, 0.35};
+    tile_.assign(kTexels * kTexels, 0.0f);
+    double sum2 = 0.0;
+    for (int j = 0; j < kTexels; ++j)
+      for (int i = 0; i < kTexels; ++i) {
+        double h = 0.0;
+        for (int o = 0; o < 3; ++o) {
+          const int n = static_cast<int>(std::lround(kTexels * kTexel / wavelengths[o]));
+          const double fx = i * kTexel / wavelengths[o], fy = j * kTexel / wavelengths[o];
+          const int li = static_cast<int>(fx), lj = static_cast<int>(fy);
+          const double u = fx - li, v = fy - lj;
+          const double su = u * u * (3 - 2 * u), sv = v * v * (3 - 2 * v);
+          auto value = [&](int a, int b) { // octave o's lattice, wrapped to the tile
+            return lattice[((b % n) + 37 * o) % 128 * 128 + ((a % n) + 53 * o) % 128];
+          };
+          h += weights[o] *
+               ((value(li, lj) * (1 - su) + value(li + 1, lj) * su) * (1 - sv) +
+                (value(li, lj + 1) * (1 - su) + value(li + 1, lj + 1) * su) * sv);
+        }
+        tile_[j * kTexels + i] = static_cast<float>(h);
+        sum2 += h * h;
+      }
+    const double scale = std_m / std::sqrt(sum2 / tile_.size());
+    bound_m_ = 0.0;
+    for (auto& v : tile_) {
+      v = static_cast<float>(v * scale);
+      bound_m_ = std::max(bound_m_, std::abs(static_cast<double>(v)));
+    }
+  }
+
+  /// Relief at (x, y); its gradient is added to (gx, gy) when asked.
+  double at(double x, double y, double* gx = nullptr, double* gy = nullptr) const
+  {
+    const double fx = x / kTexel, fy = y / kTexel;
+    const double ffx = std::floor(fx), ffy = std::floor(fy);
+    const double u = fx - ffx, v = fy - ffy;
+    const int i = static_cast<int>(static_cast<long>(ffx) & (kTexels - 1));
+    const int j = static_cast<int>(static_cast<long>(ffy) & (kTexels - 1));
+    const int i1 = (i + 1) & (kTexels - 1), j1 = (j + 1) & (kTexels - 1);
+    const double h00 = tile_[j * kTexels + i], h10 = tile_[j * kTexels + i1];
+    const double h01 = tile_[j1 * kTexels + i], h11 = tile_[j1 * kTexels + i1];
+    if (gx)
+      *gx += ((h10 - h00) * (1 - v) + (h11 - h01) * v) / kTexel;
+    if (gy)
+      *gy += ((h01 - h00) * (1 - u) + (h11 - h10) * u) / kTexel;
+    return (h00 * (1 - u) + h10 * u) * (1 - v) + (h01 * (1 - u) + h11 * u) * v;
+  }
+  /// The largest |at(x, y)|.
+  double bound() const { return bound_m_; }
+
+private:
+  static constexpr int kTexels = 256;   ///< per tile side (a power of two; 256 KB)
+  static constexpr double kTexel = 0.1; ///< m
+  std::vector<float> tile_;
+  double bound_m_ = 0.0;
+};
+
 struct PathSample
 {
   double x, y, ground_z, heading, s;
@@ -223,6 +311,43 @@ struct MovingCar
 };
 
 } // namespace
+
+// ---- scene names ----
+
+SceneType
+sceneTypeFromString(const std::string& name)
+{
+  if (name == "suburb")
+    return SceneType::kSuburb;
+  if (name == "urban")
+    return SceneType::kUrbanCanyon;
+  if (name == "highway")
+    return SceneType::kHighway;
+  if (name == "field")
+    return SceneType::kOpenField;
+  if (name == "tunnel")
+    return SceneType::kTunnel;
+  throw std::invalid_argument("sceneTypeFromString: unknown scene '" + name +
+                              "' (suburb, urban, highway, field, tunnel)");
+}
+
+std::string
+toString(SceneType type)
+{
+  switch (type) {
+  case SceneType::kSuburb:
+    return "suburb";
+  case SceneType::kUrbanCanyon:
+    return "urban";
+  case SceneType::kHighway:
+    return "highway";
+  case SceneType::kOpenField:
+    return "field";
+  case SceneType::kTunnel:
+    return "tunnel";
+  }
+  return "unknown";
+}
 
 // ---- parameters ----
 
@@ -242,6 +367,23 @@ WorldParams::isValid(std::string* why) const
   if (!prob(building_probability) || !prob(open_fraction) || !prob(tree_probability) ||
       !prob(pole_probability) || !prob(parked_car_probability) || !prob(wall_probability))
     return fail("probabilities must be in [0, 1]");
+  if (toString(scene) == "unknown")
+    return fail("scene is not a SceneType: " + std::to_string(static_cast<int>(scene)));
+  if (!(scene_min_length_m >= 10.0 && scene_min_length_m <= 1e5))
+    return fail("scene_min_length_m must be in [10, 1e5], got " +
+                std::to_string(scene_min_length_m));
+  if (!(scene_max_length_m >= scene_min_length_m && scene_max_length_m <= 1e5))
+    return fail("scene_max_length_m must be in [scene_min_length_m, 1e5], got " +
+                std::to_string(scene_max_length_m));
+  if (!(highway_half_width_m >= corridor_half_width_m && highway_half_width_m <= 30.0))
+    return fail("highway_half_width_m must be in [corridor_half_width_m, 30], got " +
+                std::to_string(highway_half_width_m));
+  if (!(ground_roughness_std_m >= 0.0 && ground_roughness_std_m <= 0.2))
+    return fail("ground_roughness_std_m must be in [0, 0.2], got " +
+                std::to_string(ground_roughness_std_m));
+  if (!(vegetation_mean_free_path_m > 0.0 && vegetation_mean_free_path_m <= 20.0))
+    return fail("vegetation_mean_free_path_m must be in (0, 20], got " +
+                std::to_string(vegetation_mean_free_path_m));
   if (!(tree_probability + pole_probability <= 1.0))
     return fail("tree_probability + pole_probability must be <= 1");
   if (!(ground_smoothing_m > 0.0 && ground_smoothing_m <= 200.0))
@@ -261,6 +403,12 @@ struct SimulatedWorld::Impl
   std::uint64_t seed = 0;
   std::vector<PathSample> path;
 
+  std::vector<SceneStretch> stretches;       ///< by arc length, the first at s = 0
+  std::vector<std::uint32_t> sample_stretch; ///< per path sample: its stretch
+  bool plain = true; ///< one suburb scene: the world of earlier versions
+  bool has_highway = false;
+  GroundRoughness roughness; ///< when params.rough_ground
+
   Grid2 dist_grid; ///< 2 m: distance to the path and heading of the nearest sample
   std::vector<float> dist;
   std::vector<float> heading;
@@ -279,26 +427,83 @@ struct SimulatedWorld::Impl
 
   // -- construction steps --
   void buildPath(const PoseVector& poses, double body_height_m);
+  void buildScenes();
   void buildDistanceField();
   void buildGround();
+  void raiseEmbankments();
   void placeObjects();
+  /// The layers of the scenes other than suburbs, with placeObjects' lot iterator and
+  /// corridor-checked insertion.
+  template <class ForLots, class Keep>
+  void placeSceneObjects(const ForLots& forLots, const Keep& keep);
   void buildRayGrid();
   void placeMovingCars();
 
   // -- queries --
-  double groundAt(double x, double y, double* gx = nullptr, double* gy = nullptr) const;
+  /// The ground without its roughness (height field of the path plus embankments).
+  double
+  smoothGroundAt(double x, double y, double* gx = nullptr, double* gy = nullptr) const;
+  /// The ground: smoothGroundAt plus the roughness when params.rough_ground.
+  double groundAt(double x, double y, double* gx = nullptr, double* gy = nullptr) const
+  {
+    const double h = smoothGroundAt(x, y, gx, gy);
+    return params.rough_ground ? h + roughness.at(x, y, gx, gy) : h;
+  }
+  SceneType sceneOfSample(std::size_t k) const
+  {
+    return stretches[sample_stretch[k]].type;
+  }
+  SceneType sceneAt(double x, double y) const
+  {
+    return sceneOfSample(nearest[dist_grid.index(dist_grid.ix(x), dist_grid.iy(y))]);
+  }
+  /// Half width of the paved road at (x, y) (darker ground).
+  double roadHalfWidthAt(double x, double y) const
+  {
+    return has_highway && sceneAt(x, y) == SceneType::kHighway
+               ? params.highway_half_width_m
+               : params.corridor_half_width_m;
+  }
+  /// A porous primitive \a id entered at t_in and left at t_out along the ray: true
+  /// and the stopping depth in \a t (and a leaf's |cos incidence|) when the ray stops
+  /// inside before t_stop_max.
+  bool porousStop(std::uint32_t id,
+                  const Eigen::Vector3d& o,
+                  const Eigen::Vector3d& d,
+                  double t_in,
+                  double t_out,
+                  double t_stop_max,
+                  double& t,
+                  double& cos_inc) const;
+  /// Ground crossing of a ray the Newton steps missed (terrain with embankments):
+  /// march in 2 m steps to the first crossing, then refine.
+  bool marchGround(const Eigen::Vector3d& o,
+                   const Eigen::Vector3d& d,
+                   double t_max,
+                   double& t,
+                   double& cos_inc) const;
+  /// The rough ground's crossing near the smooth ground's at \a t (refined in place);
+  /// (gx, gy): in the smooth ground's gradient there, out the rough ground's.
+  void refineOnRoughGround(const Eigen::Vector3d& o,
+                           const Eigen::Vector3d& d,
+                           double& t,
+                           double& gx,
+                           double& gy) const;
   double distanceAt(double x, double y) const;
   float headingAt(double x, double y) const
   {
     return heading[dist_grid.index(dist_grid.ix(x), dist_grid.iy(y))];
   }
-  /// Ground below the origin (h0, gx0, gy0) is shared by all rays of a frame.
+  /// Ground below the origin (h0, gx0, gy0: smooth ground) is shared by all rays of a
+  /// frame. \a march: rays the Newton steps miss are marched (origins on highways,
+  /// whose embankments rise beside the road).
   bool groundHit(const Eigen::Vector3d& o,
                  const Eigen::Vector3d& d,
                  double t_max,
                  double h0,
                  double gx0,
                  double gy0,
+                 bool march,
                  double& t,
                  double& cos_inc) const;
   /// Moving-car boxes at time t.
@@ -348,6 +553,59 @@ SimulatedWorld::Impl::buildPath(const PoseVector& poses, double body_height_m)
     }
     s += len;
   }
+}
+
+void
+SimulatedWorld::Impl::buildScenes()
+{
+  // Stretches by arc length; each path sample knows its own.
+  const double length = path.back().s;
+  if (!params.mixed_scenes) {
+    stretches = {{0.0, params.scene}};
+  } else {
+    Rng rng(hashOf(seed, 200));
+    int prev = -1;
+    for (double s = 0.0; s <= length;) {
+      int type = 0;
+      if (prev < 0) {
+        type = std::min(4, static_cast<int>(rng.uniform() * 5.0));
+      } else { // uniform over the 4 types other than prev
+        type = std::min(3, static_cast<int>(rng.uniform() * 4.0));
+        type += type >= prev ? 1 : 0;
+      }
+      stretches.push_back({s, static_cast<SceneType>(type)});
+      prev = type;
+      s += rng.uniform(params.scene_min_length_m, params.scene_max_length_m);
+    }
+  }
+  // A place driven again keeps the scene of its first visit: every 2 m cell within 6 m
+  // of the path remembers the first sample near it, and a sample takes that sample's
+  // stretch (the same stretch, or the previous one near its start, on a first visit).
+  std::vector<std::uint32_t> own(path.size());
+  std::size_t k = 0;
+  for (std::size_t i = 0; i < path.size(); ++i) {
+    while (k + 1 < stretches.size() && stretches[k + 1].s_begin <= path[i].s)
+      ++k;
+    own[i] = static_cast<std::uint32_t>(k);
+  }
+  const Grid2& g = dist_grid;
+  std::vector<std::uint32_t> first_visit(static_cast<std::size_t>(g.nx) * g.ny,
+                                         std::numeric_limits<std::uint32_t>::max());
+  sample_stretch.resize(path.size());
+  for (std::size_t i = 0; i < path.size(); ++i) {
+    const int ci = g.ix(path[i].x), cj = g.iy(path[i].y);
+    for (int j = std::max(0, cj - 3); j <= std::min(g.ny - 1, cj + 3); ++j)
+      for (int c = std::max(0, ci - 3); c <= std::min(g.nx - 1, ci + 3); ++c) {
+        auto& f = first_visit[g.index(c, j)];
+        f = std::min(f, static_cast<std::uint32_t>(i));
+      }
+    sample_stretch[i] = own[first_visit[g.index(ci, cj)]];
+  }
+  plain = stretches.size() == 1 && stretches[0].type == SceneType::kSuburb;
+  for (const auto& st : stretches)
+    has_highway = has_highway || st.type == SceneType::kHighway;
+  if (params.rough_ground)
+    roughness = GroundRoughness(hashOf(seed, 201), params.ground_roughness_std_m);
 }
 
 void
@@ -453,10 +711,56 @@ SimulatedWorld::Impl::buildGround()
       }
     }
   }
+  raiseEmbankments();
+}
+
+void
+SimulatedWorld::Impl::raiseEmbankments()
+{
+  // Highway stretches: on each side (drawn per stretch: one or both) an earth bank
+  // whose toe is 12-15 m from the path, rising 1:2 to a 3-6 m plateau 10-30 m wide and
+  // falling back. Baked into the 4 m ground nodes, so the road itself stays level.
+  if (!has_highway)
+    return;
+  struct Bank
+  {
+    double toe_m = 0, height_m = 0, plateau_m = 0;
+  };
+  std::vector<std::array<Bank, 2>> banks(stretches.size());
+  for (std::size_t k = 0; k < stretches.size(); ++k) {
+    Rng rng(hashOf(seed, 202, static_cast<std::int64_t>(k)));
+    const double which = rng.uniform(); // < 0.4 left only, < 0.8 right only, else both
+    for (int side = 0; side < 2; ++side) {
+      Bank& b = banks[k][side];
+      b.toe_m = rng.uniform(12.0, 15.0);
+      b.height_m = rng.uniform(3.0, 6.0);
+      b.plateau_m = rng.uniform(10.0, 30.0);
+      if ((side == 0 && which >= 0.4 && which < 0.8) || (side == 1 && which < 0.4))
+        b.height_m = 0.0;
+    }
+  }
+  const Grid2& g = ground_grid;
+  for (int j = 0; j < g.ny; ++j)
+    for (int i = 0; i < g.nx; ++i) {
+      const double x = g.x0 + i * g.cell, y = g.y0 + j * g.cell;
+      const std::size_t cell = dist_grid.index(dist_grid.ix(x), dist_grid.iy(y));
+      if (dist[cell] > 1e5f)
+        continue;
+      const std::size_t k = nearest[cell];
+      if (sceneOfSample(k) != SceneType::kHighway)
+        continue;
+      const PathSample& ps = path[k];
+      const double lateral =
+          (x - ps.x) * -std::sin(ps.heading) + (y - ps.y) * std::cos(ps.heading);
+      const Bank& b = banks[sample_stretch[k]][lateral >= 0 ? 0 : 1];
+      const double d = distanceAt(x, y);
+      const double up = d - b.toe_m, down = b.toe_m + 4.0 * b.height_m + b.plateau_m - d;
+      ground[g.index(i, j)] += std::clamp(0.5 * std::min(up, down), 0.0, b.height_m);
+    }
 }
 
 inline double
-SimulatedWorld::Impl::groundAt(double x, double y, double* gx, double* gy) const
+SimulatedWorld::Impl::smoothGroundAt(double x, double y, double* gx, double* gy) const
 {
   // Bilinear interpolation between nodes at (x0 + i * cell, y0 + j * cell).
   const Grid2& g = ground_grid;
@@ -569,11 +873,20 @@ SimulatedWorld::Impl::placeObjects()
     prims.push_back(p);
     return true;
   };
+  const float crown_free_path =
+      params.porous_vegetation ? static_cast<float>(params.vegetation_mean_free_path_m)
+                               : 0.0f;
 
   // Buildings on 16 m lots, set back from the corridor, some with an annex (L shape)
   // or a rooftop structure.
-  forLots(1, 16.0, corridor + 6.0, max_d, [&](Rng& rng, double x, double y, double) {
-    if (isOpenBlock(x, y) || rng.uniform() >= params.building_probability)
+  // Urban canyons: only behind their facades (placeSceneObjects), denser.
+  forLots(1, 16.0, corridor + 6.0, max_d, [&](Rng& rng, double x, double y, double d) {
+    const SceneType scene = sceneAt(x, y);
+    const bool urban = scene == SceneType::kUrbanCanyon;
+    if (!(scene == SceneType::kSuburb || (urban && d > corridor + 24.0)))
+      return;
+    if ((!urban && isOpenBlock(x, y)) ||
+        rng.uniform() >= (urban ? 0.8 : params.building_probability))
       return;
     const double yaw = headingAt(x, y) + (rng.uniform() < 0.75 ? rng.uniform(-0.05, 0.05)
                                                                : rng.uniform(-0.8, 0.8));
@@ -617,13 +930,20 @@ SimulatedWorld::Impl::placeObjects()
     }
   });
 
-  // Roadside trees and poles (with a sign board) on 4 m lots.
+  // Roadside trees and poles (with a sign board) on 4 m lots; urban canyons have
+  // hardly any trees.
   forLots(
       2, 4.0, corridor + 0.5, corridor + 8.0, [&](Rng& rng, double x, double y, double) {
+        const SceneType scene = sceneAt(x, y);
+        if (scene != SceneType::kSuburb && scene != SceneType::kUrbanCanyon)
+          return;
+        const bool urban = scene == SceneType::kUrbanCanyon;
+        const double tree_p = urban ? 0.03 : params.tree_probability;
+        const double pole_p = urban ? 0.15 : params.pole_probability;
         const double u = rng.uniform();
         const double cx = x + rng.uniform(-1.5, 1.5), cy = y + rng.uniform(-1.5, 1.5);
         const double g = groundAt(cx, cy);
-        if (u < params.tree_probability) {
+        if (u < tree_p) {
           const double trunk_h = rng.uniform(1.8, 3.5), rx = rng.uniform(1.2, 2.8);
           const double rz = rng.uniform(1.5, 3.5);
           Primitive crown;
@@ -634,6 +954,7 @@ SimulatedWorld::Impl::placeObjects()
           crown.hx = crown.hy = rx;
           crown.hz = rz;
           crown.reflectivity = static_cast<float>(rng.uniform(0.4, 0.6));
+          crown.mean_free_path = crown_free_path;
           if (!clearOfCorridor(crown, 0.0))
             return;
           prims.push_back(crown);
@@ -646,7 +967,7 @@ SimulatedWorld::Impl::placeObjects()
           trunk.hz = 0.5 * (trunk_h + 0.5 + 0.5 * rz);
           trunk.reflectivity = 0.35f;
           prims.push_back(trunk);
-        } else if (u < params.tree_probability + params.pole_probability) {
+        } else if (u < tree_p + pole_p) {
           Primitive pole;
           pole.kind = Kind::kCylinder;
           pole.cx = cx;
@@ -676,8 +997,15 @@ SimulatedWorld::Impl::placeObjects()
       });
 
   // Trees in parks and gaps further out, denser in open blocks.
-  forLots(3, 9.0, corridor + 8.0, max_d, [&](Rng& rng, double x, double y, double) {
-    const double p = isOpenBlock(x, y) ? 0.45 : 0.5 * params.tree_probability;
+  // Highways: sparse, and only beyond ~30 m of the road.
+  forLots(3, 9.0, corridor + 8.0, max_d, [&](Rng& rng, double x, double y, double d) {
+    const SceneType scene = sceneAt(x, y);
+    const bool highway = scene == SceneType::kHighway;
+    if (!(scene == SceneType::kSuburb || (highway && d > 40.0)))
+      return;
+    const double p = highway             ? 0.1
+                     : isOpenBlock(x, y) ? 0.45
+                                         : 0.5 * params.tree_probability;
     if (rng.uniform() >= p)
       return;
     const double cx = x + rng.uniform(-3.0, 3.0), cy = y + rng.uniform(-3.0, 3.0);
@@ -692,9 +1020,11 @@ SimulatedWorld::Impl::placeObjects()
     crown.hx = crown.hy = rx;
     crown.hz = rz;
     crown.reflectivity = static_cast<float>(rng.uniform(0.4, 0.6));
+    crown.mean_free_path = crown_free_path;
     if (!keep(crown, 0.0))
       return;
     Primitive trunk = crown;
+    trunk.mean_free_path = 0.0f;
     trunk.kind = Kind::kCylinder;
     trunk.hx = rng.uniform(0.2, 0.4);
     trunk.hz = 0.5 * (trunk_h + 0.5 + 0.5 * rz);
@@ -706,7 +1036,12 @@ SimulatedWorld::Impl::placeObjects()
   // Parked cars at the kerb, aligned with the road, never overlapping each other.
   std::vector<std::pair<double, double>> car_xy;
   forLots(4, 5.0, corridor, corridor + 6.0, [&](Rng& rng, double x, double y, double) {
-    if (rng.uniform() >= params.parked_car_probability)
+    const SceneType scene = sceneAt(x, y);
+    if (scene != SceneType::kSuburb && scene != SceneType::kUrbanCanyon)
+      return;
+    const double car_p =
+        scene == SceneType::kUrbanCanyon ? 0.5 : params.parked_car_probability;
+    if (rng.uniform() >= car_p)
       return;
     const std::size_t idx = dist_grid.index(dist_grid.ix(x), dist_grid.iy(y));
     const PathSample& ps = path[nearest[idx]];
@@ -727,11 +1062,28 @@ SimulatedWorld::Impl::placeObjects()
     prims.insert(prims.end(), car.begin(), car.end());
   });
 
-  // Walls and fences parallel to the road behind the kerb.
+  // Walls and fences parallel to the road behind the kerb (suburbs); with porous
+  // vegetation, hedges on some of the lots without a wall.
   forLots(
       5, 8.0, corridor + 4.5, corridor + 10.0, [&](Rng& rng, double x, double y, double) {
-        if (rng.uniform() >= params.wall_probability)
+        if (sceneAt(x, y) != SceneType::kSuburb)
           return;
+        if (rng.uniform() >= params.wall_probability) {
+          if (params.porous_vegetation && rng.uniform() < 0.3) {
+            const double g = groundAt(x, y);
+            Primitive hedge = makeBox(x,
+                                      y,
+                                      g - 0.3,
+                                      g + rng.uniform(1.0, 2.2),
+                                      rng.uniform(4.0, 8.0),
+                                      rng.uniform(0.8, 1.6),
+                                      headingAt(x, y),
+                                      static_cast<float>(rng.uniform(0.35, 0.55)));
+            hedge.mean_free_path = static_cast<float>(0.5 * crown_free_path);
+            keep(hedge, 0.0);
+          }
+          return;
+        }
         const bool wall = rng.uniform() < 0.5;
         const double g = groundAt(x, y);
         const double h = wall ? rng.uniform(1.5, 3.0) : rng.uniform(0.9, 1.6);
@@ -745,6 +1097,164 @@ SimulatedWorld::Impl::placeObjects()
                      static_cast<float>(wall ? rng.uniform(0.3, 0.5) : 0.6)),
              0.0);
       });
+
+  if (!plain)
+    placeSceneObjects(forLots, keep);
+}
+
+template <class ForLots, class Keep>
+void
+SimulatedWorld::Impl::placeSceneObjects(const ForLots& forLots, const Keep& keep)
+{
+  const double corridor = params.corridor_half_width_m;
+  // Structures along the road: body(rng, sample) for the middle sample of every
+  // seg_len of arc length in stretches of scene `type`, each segment with its own
+  // stream. A segment driven a second time (its cell is nearest to a sample >= 30 m
+  // earlier on the path) has its structures already.
+  auto forSegments = [&](int layer, SceneType type, double seg_len, auto&& body) {
+    const double length = path.back().s;
+    std::size_t k = 0;
+    for (long seg = 0; seg * seg_len <= length; ++seg) {
+      const double s_mid = std::min(length, (seg + 0.5) * seg_len);
+      while (k + 1 < path.size() && path[k].s < s_mid)
+        ++k;
+      const PathSample& ps = path[k];
+      const std::size_t cell = dist_grid.index(dist_grid.ix(ps.x), dist_grid.iy(ps.y));
+      if (sceneOfSample(k) != type || path[nearest[cell]].s < ps.s - 30.0)
+        continue;
+      Rng rng(hashOf(seed, layer, seg));
+      body(rng, ps, k);
+    }
+  };
+  // A box along the road whose inner face is `offset` beside the path sample on
+  // `side` (+1 left, -1 right), `along` ahead of it, heights relative to the smooth
+  // ground (long structures do not follow the few cm of rough relief).
+  auto besideRoad = [&](const PathSample& ps,
+                        double side,
+                        double offset,
+                        double depth,
+                        double length,
+                        double z_lo,
+                        double z_hi,
+                        float reflectivity,
+                        double along = 0.0) {
+    const double c = std::cos(ps.heading), s = std::sin(ps.heading);
+    const double lateral = side * (offset + 0.5 * depth);
+    const double x = ps.x - lateral * s + along * c, y = ps.y + lateral * c + along * s;
+    const double g = smoothGroundAt(x, y);
+    return makeBox(x, y, g + z_lo, g + z_hi, length, depth, ps.heading, reflectivity);
+  };
+
+  // Urban canyon: 12 m facade segments 5-7 m outside the corridor, 10 % gaps.
+  forSegments(20,
+              SceneType::kUrbanCanyon,
+              12.0,
+              [&](Rng& rng, const PathSample& ps, std::size_t) {
+                for (const double side : {-1.0, 1.0}) {
+                  if (rng.uniform() < 0.1)
+                    continue;
+                  const double offset = corridor + rng.uniform(5.0, 7.0);
+                  const double depth = rng.uniform(8.0, 15.0);
+                  const double height = rng.uniform(10.0, 40.0);
+                  const auto refl = static_cast<float>(rng.uniform(0.25, 0.6));
+                  keep(besideRoad(ps, side, offset, depth, 12.4, -1.0, height, refl),
+                       0.0);
+                }
+              });
+
+  // Highway: guard rails (0.3 m at 0.5-0.8 m) 0.5 m beyond the road's edge on both
+  // sides, on posts every 2.67 m. Embankments are in the ground (raiseEmbankments).
+  const double rail = params.highway_half_width_m + 0.5;
+  forSegments(21, SceneType::kHighway, 8.0, [&](Rng&, const PathSample& ps, std::size_t) {
+    for (const double side : {-1.0, 1.0}) {
+      keep(besideRoad(ps, side, rail, 0.1, 8.05, 0.5, 0.8, 0.6f), 0.0);
+      for (int p = -1; p <= 1; ++p)
+        keep(besideRoad(ps, side, rail + 0.1, 0.15, 0.15, -0.3, 0.75, 0.5f, p * 8.0 / 3),
+             0.0);
+    }
+  });
+
+  // Tunnel: per stretch two smooth walls 0.8-2 m outside the corridor, 5-7 m tall, and
+  // a ceiling over part of it (70 % of the stretches).
+  // 10 m segments: fewer boxes per ray-grid cell (every ray in a tunnel is near them).
+  const double tunnel_seg = 10.0;
+  forSegments(
+      24, SceneType::kTunnel, tunnel_seg, [&](Rng&, const PathSample& ps, std::size_t k) {
+        const std::uint32_t st = sample_stretch[k];
+        Rng srng(hashOf(seed, 203, st));
+        const double offset = corridor + srng.uniform(0.8, 2.0);
+        const double height = srng.uniform(5.0, 7.0);
+        const double begin = stretches[st].s_begin;
+        const double end =
+            st + 1 < stretches.size() ? stretches[st + 1].s_begin : path.back().s;
+        const bool roofed = srng.uniform() < 0.7;
+        const double roof_a = begin + (end - begin) * srng.uniform(0.0, 0.3);
+        const double roof_b = begin + (end - begin) * srng.uniform(0.6, 1.0);
+        for (const double side : {-1.0, 1.0})
+          keep(besideRoad(ps, side, offset, 0.5, tunnel_seg + 0.3, -0.5, height, 0.35f),
+               -1.5);
+        if (roofed && ps.s >= roof_a && ps.s <= roof_b) {
+          const double g = smoothGroundAt(ps.x, ps.y);
+          prims.push_back(makeBox(ps.x,
+                                  ps.y,
+                                  g + height,
+                                  g + height + 0.4,
+                                  tunnel_seg + 0.3,
+                                  2.0 * offset + 1.0,
+                                  ps.heading,
+                                  0.3f));
+        }
+      });
+
+  // Open field / parking lot: a few lamp posts (with an arm) ...
+  forLots(23, 20.0, corridor + 2.0, 60.0, [&](Rng& rng, double x, double y, double) {
+    if (sceneAt(x, y) != SceneType::kOpenField || rng.uniform() >= 0.3)
+      return;
+    const double cx = x + rng.uniform(-6.0, 6.0), cy = y + rng.uniform(-6.0, 6.0);
+    const double g = groundAt(cx, cy), h = rng.uniform(6.0, 10.0);
+    Primitive pole;
+    pole.kind = Kind::kCylinder;
+    pole.cx = cx;
+    pole.cy = cy;
+    pole.hx = rng.uniform(0.1, 0.15);
+    pole.cz = g - 0.5 + 0.5 * (h + 0.5);
+    pole.hz = 0.5 * (h + 0.5);
+    pole.reflectivity = 0.7f;
+    if (!keep(pole, 0.0))
+      return;
+    const double yaw = rng.uniform(0.0, 2.0 * kPi);
+    keep(makeBox(cx + 0.8 * std::cos(yaw),
+                 cy + 0.8 * std::sin(yaw),
+                 g + h - 0.25,
+                 g + h,
+                 1.6,
+                 0.3,
+                 yaw,
+                 0.8f),
+         0.0);
+  });
+  // ... and rows of parked cars far out, nose to the row's line.
+  forLots(22, 32.0, corridor + 14.0, 70.0, [&](Rng& rng, double x, double y, double) {
+    if (sceneAt(x, y) != SceneType::kOpenField || rng.uniform() >= 0.4)
+      return;
+    const double row_yaw = headingAt(x, y);
+    const int n = 3 + static_cast<int>(rng.uniform() * 8.0);
+    for (int c = 0; c < n; ++c) {
+      if (rng.uniform() < 0.25) // an empty bay
+        continue;
+      const double along = (c - 0.5 * (n - 1)) * 2.7;
+      std::vector<Primitive> car;
+      addCar(x + along * std::cos(row_yaw),
+             y + along * std::sin(row_yaw),
+             row_yaw + 0.5 * kPi + rng.uniform(-0.05, 0.05),
+             rng,
+             car);
+      if (std::all_of(car.begin(), car.end(), [&](const Primitive& b) {
+            return clearOfCorridor(b, 0.0);
+          }))
+        prims.insert(prims.end(), car.begin(), car.end());
+    }
+  });
 }
 
 void
@@ -754,9 +1264,14 @@ SimulatedWorld::Impl::buildRayGrid()
   const std::size_t n = static_cast<std::size_t>(g.nx) * g.ny;
   std::vector<std::uint32_t> count(n + 1, 0);
   auto cellsOf = [&](const Primitive& p, auto&& visit) {
-    const double r = p.footprintRadius();
-    for (int j = g.iy(p.cy - r); j <= g.iy(p.cy + r); ++j)
-      for (int i = g.ix(p.cx - r); i <= g.ix(p.cx + r); ++i)
+    // The footprint's bounding box: for a box its rotated rectangle's, much tighter
+    // than the enclosing circle for long walls.
+    const double rx = p.kind == Kind::kBox ? std::abs(p.c) * p.hx + std::abs(p.s) * p.hy
+                                           : p.footprintRadius();
+    const double ry = p.kind == Kind::kBox ? std::abs(p.s) * p.hx + std::abs(p.c) * p.hy
+                                           : p.footprintRadius();
+    for (int j = g.iy(p.cy - ry); j <= g.iy(p.cy + ry); ++j)
+      for (int i = g.ix(p.cx - rx); i <= g.ix(p.cx + rx); ++i)
         visit(g.index(i, j));
   };
   for (const auto& p : prims)
@@ -841,23 +1356,28 @@ SimulatedWorld::Impl::groundHit(const Eigen::Vector3d& o,
                                 double h0,
                                 double gx0,
                                 double gy0,
+                                bool march,
                                 double& t,
                                 double& cos_inc) const
 {
-  // Newton on f(t) = o_z + t d_z - h(o_xy + t d_xy), started from the tangent plane
-  // of the ground below the origin.
+  // Newton on f(t) = o_z + t d_z - h(o_xy + t d_xy) on the smooth ground, started
+  // from the tangent plane of the ground below the origin. Embankments (highways)
+  // fall back to marching; rough ground refines the smooth crossing.
   double gx, gy;
   const double slope0 = d.z() - gx0 * d.x() - gy0 * d.y();
   if (slope0 >= -1e-9 || o.z() <= h0)
-    return false;
+    return march && marchGround(o, d, t_max, t, cos_inc);
   t = (o.z() - h0) / -slope0;
-  for (int it = 0; it < 6; ++it) {
+  const int iterations = march ? 12 : 6;
+  for (int it = 0; it < iterations; ++it) {
     if (t > 2.0 * t_max)
-      return false;
-    const double h = groundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
+      break;
+    const double h = smoothGroundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
     const double f = o.z() + t * d.z() - h;
     const double df = d.z() - gx * d.x() - gy * d.y();
     if (std::abs(f) < 5e-4) {
+      if (params.rough_ground)
+        refineOnRoughGround(o, d, t, gx, gy);
       if (t <= 0.0 || t >= t_max)
         return false;
       const Eigen::Vector3d n(-gx, -gy, 1.0);
@@ -865,10 +1385,119 @@ SimulatedWorld::Impl::groundHit(const Eigen::Vector3d& o,
       return true;
     }
     if (df >= -1e-9)
-      return false;
+      break;
     t -= f / df;
   }
+  return march && marchGround(o, d, t_max, t, cos_inc);
+}
+
+bool
+SimulatedWorld::Impl::marchGround(const Eigen::Vector3d& o,
+                                  const Eigen::Vector3d& d,
+                                  double t_max,
+                                  double& t,
+                                  double& cos_inc) const
+{
+  auto f = [&](double tt) {
+    return o.z() + tt * d.z() - smoothGroundAt(o.x() + tt * d.x(), o.y() + tt * d.y());
+  };
+  // 8 m steps up to 80 m (embankments rise 3-6 m over 6-12 m and end within ~70 m of
+  // the road), bisection down to 5 cm, then the secant: the ground is bilinear
+  // between 4 m nodes, so nearly linear along that little of the ray.
+  const double step = 8.0, t_end = std::min(t_max, 80.0);
+  double t_lo = 0.0, f_lo = f(0.0);
+  if (f_lo <= 0.0)
+    return false;
+  for (double t_hi = step; t_lo < t_end; t_lo = t_hi, t_hi += step) {
+    double f_hi = f(t_hi);
+    if (f_hi > 0.0) {
+      f_lo = f_hi;
+      continue;
+    }
+    while (t_hi - t_lo > 0.05) {
+      const double mid = 0.5 * (t_lo + t_hi), f_mid = f(mid);
+      if (f_mid > 0.0) {
+        t_lo = mid;
+        f_lo = f_mid;
+      } else {
+        t_hi = mid;
+        f_hi = f_mid;
+      }
+    }
+    t = t_lo + (t_hi - t_lo) * f_lo / (f_lo - f_hi);
+    double gx, gy;
+    smoothGroundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
+    if (params.rough_ground)
+      refineOnRoughGround(o, d, t, gx, gy);
+    if (t <= 0.0 || t >= t_max)
+      return false;
+    const Eigen::Vector3d n(-gx, -gy, 1.0);
+    cos_inc = std::abs(n.dot(d)) / n.norm();
+    return true;
+  }
   return false;
+}
+
+void
+SimulatedWorld::Impl::refineOnRoughGround(const Eigen::Vector3d& o,
+                                          const Eigen::Vector3d& d,
+                                          double& t,
+                                          double& gx,
+                                          double& gy) const
+{
+  // Safeguarded Newton (rtsafe, Numerical Recipes 9.4) on f(t) = o_z + t d_z - ground(t),
+  // ground = smooth + relief. The relief is bounded by b, so f changes sign in [t - b /
+  // |f'|, t + b / |f'|] around the smooth crossing t (f' the smooth ground's slope
+  // there): Newton steps with the full slope while they stay inside that shrinking
+  // bracket, bisection otherwise. Steep rays take 2-3 steps; grazing rays, where Newton
+  // on the relief alone would wander off, still converge.
+  const double df_smooth = std::min(d.z() - gx * d.x() - gy * d.y(), -1e-3);
+  const double reach = 1.05 * roughness.bound() / -df_smooth;
+  double lo = std::max(0.0, t - reach), hi = t + reach;
+  // At most 4 steps: by then grazing rays are within a few mm of a crossing (the
+  // relief's first and last crossings differ by more than that anyway). The first
+  // needs only the relief: t is on the smooth ground.
+  for (int it = 0; it < 4; ++it) {
+    const double x = o.x() + t * d.x(), y = o.y() + t * d.y();
+    const double ground = it == 0 ? o.z() + t * d.z() + roughness.at(x, y, &gx, &gy)
+                                  : groundAt(x, y, &gx, &gy);
+    const double f = o.z() + t * d.z() - ground;
+    if (std::abs(f) < 2e-3 || hi - lo < 2e-3)
+      return;
+    (f > 0.0 ? lo : hi) = t;
+    const double df = d.z() - gx * d.x() - gy * d.y();
+    const double t_newton = df < -1e-9 ? t - f / df : kInf;
+    t = t_newton > lo && t_newton < hi ? t_newton : 0.5 * (lo + hi);
+  }
+}
+
+inline bool
+SimulatedWorld::Impl::porousStop(std::uint32_t id,
+                                 const Eigen::Vector3d& o,
+                                 const Eigen::Vector3d& d,
+                                 double t_in,
+                                 double t_out,
+                                 double t_stop_max,
+                                 double& t,
+                                 double& cos_inc) const
+{
+  // Exponential free path from a hash of (seed, primitive, ray): the ray's origin and
+  // direction quantized to 0.1 mm and 1e-7, so a frame's rays draw the same depths
+  // whatever else is simulated and however the rays are split among threads.
+  auto q = [](double v, double unit) {
+    return static_cast<std::int64_t>(std::llround(v / unit));
+  };
+  std::uint64_t h = hashOf(seed ^ 0x7E6E7A710AULL, id, q(d.x(), 1e-7), q(d.y(), 1e-7));
+  h = hashOf(h, q(d.z(), 1e-7), q(o.x(), 1e-4), q(o.y(), 1e-4));
+  h = hashOf(h, q(o.z(), 1e-4));
+  const double u = static_cast<double>(h >> 11) * 0x1.0p-53;
+  const double depth = -prims[id].mean_free_path * std::log1p(-u);
+  t = std::max(t_in, 0.0) + depth;
+  if (t >= std::min(t_out, t_stop_max))
+    return false;
+  // A leaf facing a random way: |cos incidence| from the hash's other bits.
+  cos_inc = 0.2 + 0.8 * static_cast<double>(splitmix64(h) >> 11) * 0x1.0p-53;
+  return true;
 }
 
 // ---- public interface ----
@@ -891,6 +1520,7 @@ SimulatedWorld::SimulatedWorld(const WorldParams& params,
   impl_->seed = seed;
   impl_->buildPath(T_world_body, body_height_m);
   impl_->buildDistanceField();
+  impl_->buildScenes();
   impl_->buildGround();
   impl_->placeObjects();
   impl_->buildRayGrid();
@@ -909,6 +1539,30 @@ double
 SimulatedWorld::distanceToPath(double x, double y) const
 {
   return impl_->distanceAt(x, y);
+}
+
+SceneType
+SimulatedWorld::sceneAt(double x, double y) const
+{
+  return impl_->sceneAt(x, y);
+}
+
+SceneType
+SimulatedWorld::sceneAtArcLength(double s_m) const
+{
+  const auto& path = impl_->path;
+  const auto it =
+      std::lower_bound(path.begin(), path.end(), s_m, [](const PathSample& p, double v) {
+        return p.s < v;
+      });
+  const auto k = std::min<std::ptrdiff_t>(it - path.begin(), path.size() - 1);
+  return impl_->sceneOfSample(static_cast<std::size_t>(k));
+}
+
+double
+SimulatedWorld::pathLength() const
+{
+  return impl_->path.back().s;
 }
 
 std::size_t
@@ -987,7 +1641,8 @@ SimulatedWorld::Impl::castRays(const Eigen::Vector3d* origins,
       if (std::hypot(b.cx - o.x(), b.cy - o.y()) < max_range_m + 5.0)
         near_movers.push_back(b);
     double gx0, gy0;
-    const double h0 = w.groundAt(o.x(), o.y(), &gx0, &gy0);
+    const double h0 = w.smoothGroundAt(o.x(), o.y(), &gx0, &gy0);
+    const bool march = w.has_highway && w.sceneAt(o.x(), o.y()) == SceneType::kHighway;
 
     for (std::size_t r = r0; r < r1; ++r) {
       const Eigen::Vector3d& d = dirs[r];
@@ -997,12 +1652,12 @@ SimulatedWorld::Impl::castRays(const Eigen::Vector3d* origins,
       bool found = false, is_ground = false;
 
       double t_ground, cos_ground;
-      if (w.groundHit(o, d, max_range_m, h0, gx0, gy0, t_ground, cos_ground)) {
+      if (w.groundHit(o, d, max_range_m, h0, gx0, gy0, march, t_ground, cos_ground)) {
         best = t_ground;
         best_cos = cos_ground;
         const Eigen::Vector3d p = o + t_ground * d;
         best_refl =
-            w.distanceAt(p.x(), p.y()) < w.params.corridor_half_width_m ? 0.12f : 0.28f;
+            w.distanceAt(p.x(), p.y()) < w.roadHalfWidthAt(p.x(), p.y()) ? 0.12f : 0.28f;
         found = is_ground = true;
       }
 
@@ -1064,11 +1719,15 @@ SimulatedWorld::Impl::castRays(const Eigen::Vector3d* origins,
               if (mailbox[id] == ray_id)
                 continue;
               mailbox[id] = ray_id;
-              double t, cos_inc;
-              if (intersect(w.prims[id], o, d, 1e-6, best, t, cos_inc)) {
+              const Primitive& prim = w.prims[id];
+              double t, cos_inc, t_out;
+              const bool porous = prim.mean_free_path > 0.0f;
+              if (intersect(
+                      prim, o, d, 1e-6, best, t, cos_inc, porous ? &t_out : nullptr) &&
+                  (!porous || w.porousStop(id, o, d, t, t_out, best, t, cos_inc))) {
                 best = t;
                 best_cos = cos_inc;
-                best_refl = w.prims[id].reflectivity;
+                best_refl = prim.reflectivity;
                 found = true;
                 is_ground = false;
               }

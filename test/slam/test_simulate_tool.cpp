@@ -1,7 +1,7 @@
 /// \file test_simulate_tool.cpp
 /// \brief The command-line contract of pcl_rast_simulate: files written, first pose
-/// identity, frame selection, formats, raw sweeps, imperfections, exit codes on bad
-/// arguments.
+/// identity, frame selection, formats, raw sweeps, imperfections, scene types, rough
+/// ground and porous vegetation, exit codes on bad arguments.
 
 #include "test_data.h"
 
@@ -149,6 +149,35 @@ TEST_F(SimulateTool, ImperfectionsSwitch)
   EXPECT_GT(bytes("clean").size(), 0u);
   EXPECT_NE(bytes("clean"), bytes("a"));
   EXPECT_EQ(bytes("a"), bytes("b"));
+}
+
+TEST_F(SimulateTool, SceneAndWorldSwitches)
+{
+  ASSERT_EQ(runSimulate("-h", log_), 0);
+  std::ifstream help(log_);
+  const std::string usage((std::istreambuf_iterator<char>(help)), {});
+  for (const char* flag : {"-scene", "-rough-ground", "-porous-vegetation"})
+    EXPECT_NE(usage.find(flag), std::string::npos) << flag << "\n" << usage;
+
+  const std::string base = "-path straight -frames 2 -sensor vlp16 -seed 5 -output ";
+  ASSERT_EQ(runSimulate(base + out("suburb"), log_), 0);
+  ASSERT_EQ(runSimulate(base + out("tunnel") + " -scene tunnel", log_), 0);
+  ASSERT_EQ(
+      runSimulate(base + out("all") + " -scene mixed -rough-ground -porous-vegetation",
+                  log_),
+      0);
+  auto bytes = [&](const std::string& name) {
+    std::ifstream in(dir_ / name / "velodyne" / "000001.bin", std::ios::binary);
+    return std::string((std::istreambuf_iterator<char>(in)), {});
+  };
+  EXPECT_GT(bytes("tunnel").size(), 0u);
+  EXPECT_NE(bytes("suburb"), bytes("tunnel"));
+  EXPECT_GT(bytes("all").size(), 0u);
+
+  EXPECT_EQ(runSimulate(base + out("bad") + " -scene forest", log_), 1);
+  std::ifstream err(log_);
+  const std::string message((std::istreambuf_iterator<char>(err)), {});
+  EXPECT_NE(message.find("forest"), std::string::npos) << message;
 }
 
 TEST_F(SimulateTool, RawSweepSwitch)

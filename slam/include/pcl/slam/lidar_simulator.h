@@ -5,6 +5,12 @@
 /// parked cars, walls and fences, optional moving cars) and ray-cast sensor models
 /// (Velodyne HDL-64E, VLP-16, Ouster OS1-64, handheld Ouster OS0-128).
 ///
+/// The world's scene type (SceneType: suburb, urban canyon, highway, open field,
+/// tunnel) is fixed for the whole path or, with WorldParams::mixed_scenes, changes
+/// along it in stretches of 150-500 m. Optional: rough ground (a few cm of
+/// high-frequency relief) and porous vegetation (tree crowns and hedges that rays
+/// enter and stop inside at a random depth, or pass through).
+///
 /// Pipeline: trajectory (T_world_body) -> SimulatedWorld (built once, consistent for
 /// every pose) -> per frame: sensor pose T_world_sensor = T_world_body *
 /// T_body_sensor(t), one ray per beam and azimuth step, range noise / dropouts /
@@ -61,6 +67,25 @@ enum class PathType
   kLoop,       ///< a closed rounded-rectangle loop, driven ~1.15 times (revisit)
   kFigureEight ///< a lemniscate of Gerono, driven ~1.1 times, crossing itself at 90 deg
 };
+
+/// \brief Kinds of surroundings a drive passes through (WorldParams::scene).
+enum class SceneType
+{
+  kSuburb,      ///< houses, trees, poles, parked cars, walls and fences (the default)
+  kUrbanCanyon, ///< near-continuous 10-40 m facades 5-7 m outside the corridor, both
+                ///< sides; parked cars, lamp posts, hardly any trees
+  kHighway,     ///< wide road, guard rails on both sides, embankments; nothing else
+                ///< within ~30 m (degenerate along the road for point-to-plane ICP)
+  kOpenField,   ///< parking lot: flat, a few lamp posts, rows of parked cars far out
+  kTunnel       ///< two smooth 5-7 m walls 4.8-6 m from the path, partly roofed;
+                ///< nothing else (degenerate along the road)
+};
+
+/// \brief Parse "suburb", "urban", "highway", "field", "tunnel".
+/// \throws std::invalid_argument naming the bad value.
+SceneType sceneTypeFromString(const std::string& name);
+/// \brief The inverse of sceneTypeFromString.
+std::string toString(SceneType type);
 
 /// \brief Parse "hdl64", "vlp16", "os1-64", "os0-128".
 /// \throws std::invalid_argument naming the bad value.
@@ -126,6 +151,28 @@ PoseVector generatePath(const PathParams& params);
 /// \brief Parameters of the procedural world.
 struct WorldParams
 {
+  /// The scene along the whole path, unless mixed_scenes. kSuburb is the world of
+  /// earlier versions, bit-identical.
+  SceneType scene = SceneType::kSuburb;
+  /// Cut the path by arc length into stretches of scene_min_length_m to
+  /// scene_max_length_m, each of a scene type drawn from the seed (never twice in a
+  /// row); scene is then ignored. Every object layer uses the scene of the nearest
+  /// path sample.
+  bool mixed_scenes = false;
+  double scene_min_length_m = 150.0; ///< mixed_scenes: shortest stretch
+  double scene_max_length_m = 500.0; ///< mixed_scenes: longest stretch
+  double highway_half_width_m = 8.0; ///< highway: road half width, rails 0.5 m beyond
+  /// Deterministic relief of the ground: value noise of wavelengths 0.4-2 m from the
+  /// seed, std ground_roughness_std_m. false: the smooth ground of earlier versions.
+  bool rough_ground = false;
+  double ground_roughness_std_m = 0.03; ///< rough_ground: std of the relief
+  /// Tree crowns (and hedges, added along fences in suburbs) are porous: a ray that
+  /// enters one stops at an exponential depth of mean vegetation_mean_free_path_m
+  /// (hedges: half of it), or passes through when that lies beyond the exit. The depth
+  /// is hashed from the seed, the primitive and the ray (origin and direction), so
+  /// frames stay independent. false: solid crowns, no hedges.
+  bool porous_vegetation = false;
+  double vegetation_mean_free_path_m = 1.0; ///< porous_vegetation: crowns' mean depth
   double corridor_half_width_m = 4.0;  ///< kept free of static objects around the path
   double max_object_distance_m = 80.0; ///< objects are generated up to this from the path
   double building_probability = 0.6;   ///< chance a 16 m lot holds a building
@@ -179,6 +226,13 @@ public:
   /// \brief Horizontal distance from (x, y) to the nearest path sample (2 m grid,
   /// accurate to ~1.5 m; exact path samples are every <= 1 m).
   double distanceToPath(double x, double y) const;
+  /// \brief Scene type at (x, y): that of the nearest path sample (2 m grid).
+  SceneType sceneAt(double x, double y) const;
+  /// \brief Scene type at arc length \a s_m along the path (clamped to the path). A
+  /// place driven again keeps the scene of its first visit.
+  SceneType sceneAtArcLength(double s_m) const;
+  /// \brief Length of the path the world was built around (arc length, horizontal).
+  double pathLength() const;
   /// \brief Number of static primitives.
   std::size_t numPrimitives() const;
 
