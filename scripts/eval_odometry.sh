@@ -9,7 +9,9 @@
 #                            [-- odometry flags]
 #
 #   Realistic by default: raw sweeps (each column at its firing time) written as PCD
-#   with a per-point `time` field, moving cars, sensor imperfections (per-beam biases,
+#   with a per-point `time` field, realistic traffic (lanes both ways with trucks and
+#   buses, cars stopping beside the ego, cross traffic at its stops), sensor
+#   imperfections (per-beam biases,
 #   outliers, mixed pixels, intensity noise), and reporting seed 101 (seeds below 100
 #   are for tuning: never report on them). -c: the clean world instead (instantaneous
 #   scans, no traffic, .bin, seed 1: the figures of earlier sessions). -e 5 takes every
@@ -42,7 +44,7 @@ while getopts "b:o:s:f:n:e:S:r:ckh" opt; do
     r) seed="$OPTARG" ;;
     c) clean=1 ;;
     k) keep=1 ;;
-    h) sed -n '2,19p' "$0"; exit 0 ;;
+    h) sed -n '2,21p' "$0"; exit 0 ;;
     *) exit 1 ;;
   esac
 done
@@ -58,8 +60,8 @@ if (( clean )); then
   world=(-seed "$seed")
   settings="clean world: instantaneous scans, no traffic, .bin, seed $seed"
 else
-  world=(-seed "$seed" -raw-sweep -moving-cars -imperfections -format pcd)
-  settings="realistic: raw sweeps (PCD time field), moving cars, sensor imperfections, seed $seed"
+  world=(-seed "$seed" -raw-sweep -moving-cars -traffic realistic -imperfections -format pcd)
+  settings="realistic: raw sweeps (PCD time field), realistic traffic, sensor imperfections, seed $seed"
   (( seed < 100 )) && settings="$settings (a TUNING seed: do not report)"
 fi
 echo "eval_odometry (simulated): $settings; sensor $sensor; frames $first+$frames every $every;" \
