@@ -245,7 +245,7 @@ struct Agent
   MotionProfile profile{0.0, 0.0, 0.0};
   // Companions (stop beside the ego): index of the stop, offset to the ego, approach.
   int stop = -1, leader = -1;
-  double offset_m = 0.0, join_s = 0.0, approach_mps = 0.0, go_s = 0.0, accel_mps2 = 0.0;
+  double offset_m = 0.0, join_s = 0.0, go_s = 0.0, accel_mps2 = 0.0;
   // Cross traffic: crosses the path at centre_s, from origin along dir.
   double centre_s = 0.0;
   Eigen::Vector2d origin{0, 0}, dir{1, 0};
@@ -265,6 +265,7 @@ struct TrafficModel::Impl
   TrafficParams params;
   double lane_offset_m = 3.0;
   double lane_window_m = kLaneWindowM; ///< lane vehicles this close in arc length show
+  double lane_speed_mps[2] = {10.0, 10.0}; ///< same way, oncoming
   std::vector<TrafficPathPoint> path;
   std::vector<double> ego_t, ego_s; ///< per frame: time and arc length
   std::vector<EgoStop> stops;
@@ -357,9 +358,11 @@ struct TrafficModel::Impl
   {
     const EgoStop& stop = stops[a.stop];
     double s;
-    if (t <= stop.from_s) // with the ego, catching up from behind until join_s
-      s = egoS(t) + a.offset_m - a.approach_mps * std::max(0.0, a.join_s - t);
-    else
+    if (t <= a.join_s) // cruising with the lane (the ego catches up or is caught up)
+      s = egoS(a.join_s) + a.offset_m - a.v_mps * (a.join_s - t);
+    else if (t <= stop.from_s) // braking with the ego
+      s = egoS(t) + a.offset_m;
+    else // standing beside it, then pulling away
       s = stop.s_m + a.offset_m + startFromRest(t - a.go_s, a.accel_mps2, a.v_mps);
     if (a.leader >= 0)
       s = std::min(s,
@@ -377,7 +380,7 @@ struct TrafficModel::Impl
   }
 
   void findStops(const PoseVector& poses, std::uint64_t seed);
-  void placeCompanions(std::uint64_t seed, double ego_speed_mps);
+  void placeCompanions(std::uint64_t seed);
   void placeFreeLane(std::uint64_t seed, int direction);
   void placeCrossTraffic(std::uint64_t seed);
   bool clearOfCompanions(const Agent& a) const;
@@ -412,12 +415,10 @@ TrafficModel::Impl::findStops(const PoseVector& poses, std::uint64_t seed)
 }
 
 void
-TrafficModel::Impl::placeCompanions(std::uint64_t seed, double ego_speed_mps)
+TrafficModel::Impl::placeCompanions(std::uint64_t seed)
 {
-  std::vector<double> sa;
   for (std::size_t k = 0; k < stops.size(); ++k) {
     const EgoStop& stop = stops[k];
-    const std::size_t first = companions.size();
     for (int m = 0; m < params.companions_per_stop; ++m) {
       Draw draw(seed, 1, k * 16 + m);
       Agent a;
@@ -435,34 +436,27 @@ TrafficModel::Impl::placeCompanions(std::uint64_t seed, double ego_speed_mps)
         a.go_s = ahead.go_s + draw(0.6, 1.5);
       }
       a.join_s = stop.from_s - draw(3.0, 6.0);
-      a.approach_mps = draw(2.5, 4.5);
       a.accel_mps2 = draw(1.2, 3.0);
-      a.v_mps = ego_speed_mps + draw(0.5, 3.0);
-      a.from_s = a.join_s - 20.0;
-      a.to_s = a.go_s + 25.0;
+      a.v_mps = lane_speed_mps[0];
+      // Each stop's companions drive from halfway since the previous stop to halfway
+      // to the next (they appear and vanish there).
+      if (k > 0)
+        a.from_s = 0.5 * (stops[k - 1].to_s + stop.from_s);
+      if (k + 1 < stops.size())
+        a.to_s = 0.5 * (stop.to_s + stops[k + 1].from_s);
       companions.push_back(a);
     }
-    // Companions of an earlier stop still around must not meet these: drop these.
-    bool clash = false;
-    for (double t = companions[first].from_s; t <= companions[first].to_s && !clash;
-         t += 0.1) {
-      companionPositions(t, sa);
-      for (std::size_t i = first; i < companions.size() && !clash; ++i)
-        for (std::size_t j = 0; j < first && !clash; ++j)
-          clash = t >= companions[j].from_s && t <= companions[j].to_s &&
-                  std::abs(sa[i] - sa[j]) < 0.5 * (companions[i].shape.length_m +
-                                                   companions[j].shape.length_m) +
-                                                kLaneMarginM;
-    }
-    if (clash)
-      companions.resize(first);
   }
-  // Their tracks, for keeping free traffic off them.
-  for (const Agent& c : companions) {
+  // Their tracks over the drive, for keeping free traffic off them.
+  std::vector<double> s;
+  for (std::size_t i = 0; i < companions.size(); ++i) {
+    const Agent& c = companions[i];
     companion_tracks.emplace_back();
-    for (double t = c.from_s; t <= c.to_s; t += 0.1) {
-      companionPositions(t, sa);
-      companion_tracks.back().push_back({t, sa[companion_tracks.size() - 1]});
+    for (double t = std::max(c.from_s, ego_t.front() - 5.0);
+         t <= std::min(c.to_s, ego_t.back() + 5.0);
+         t += 0.1) {
+      companionPositions(t, s);
+      companion_tracks.back().push_back({t, s[i]});
     }
   }
 }
@@ -484,8 +478,7 @@ void
 TrafficModel::Impl::placeFreeLane(std::uint64_t seed, int direction)
 {
   const bool same = direction > 0;
-  Draw lane_draw(seed, same ? 2 : 3, 0);
-  const double v_lane = same ? lane_draw(9.0, 13.0) : lane_draw(10.0, 14.0);
+  const double v_lane = lane_speed_mps[same ? 0 : 1];
   const double gap_mean = same ? params.same_direction_gap_m : params.oncoming_gap_m;
   const double t0 = ego_t.front(), duration_s = ego_t.back() - t0;
   const double length_m = path.back().s_m;
@@ -633,19 +626,10 @@ TrafficModel::TrafficModel(const TrafficParams& params,
         m.lane_window_m =
             std::min(m.lane_window_m, 0.45 * (coarse[j]->s_m - coarse[i]->s_m));
 
-  // The ego's cruising speed: the median of its moving speeds.
-  std::vector<double> speeds;
-  for (std::size_t i = 1; i < m.ego_s.size(); ++i) {
-    const double v = (m.ego_s[i] - m.ego_s[i - 1]) / (m.ego_t[i] - m.ego_t[i - 1]);
-    if (v > 1.0)
-      speeds.push_back(v);
-  }
-  double ego_speed_mps = 10.0;
-  if (!speeds.empty()) {
-    std::nth_element(speeds.begin(), speeds.begin() + speeds.size() / 2, speeds.end());
-    ego_speed_mps = speeds[speeds.size() / 2];
-  }
-  m.placeCompanions(seed, ego_speed_mps);
+  Draw lane_draw(seed, 2, 0);
+  m.lane_speed_mps[0] = lane_draw(9.0, 13.0);
+  m.lane_speed_mps[1] = lane_draw(10.0, 14.0);
+  m.placeCompanions(seed);
   m.placeFreeLane(seed, 1);
   m.placeFreeLane(seed, -1);
   m.placeCrossTraffic(seed);
@@ -669,6 +653,19 @@ double
 TrafficModel::roadHalfWidth() const
 {
   return impl_->params.oncoming_lane_offset_m + 1.5;
+}
+
+std::vector<CrossRoad>
+TrafficModel::crossRoads() const
+{
+  std::vector<CrossRoad> roads;
+  for (const EgoStop& stop : impl_->stops) {
+    const Eigen::Vector2d left(-stop.forward.y(), stop.forward.x());
+    // Two 3.5 m lanes and a pavement each side.
+    roads.push_back(
+        {stop.xy + stop.cross_m * stop.forward, left, kCrossHalfLengthM + 10.0, 6.0});
+  }
+  return roads;
 }
 
 std::vector<MovingVehicle>

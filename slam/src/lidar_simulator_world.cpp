@@ -288,6 +288,7 @@ struct SimulatedWorld::Impl
   void placeObjects();
   void buildRayGrid();
   void placeMovingCars(const PoseVector& poses, const std::vector<double>& timestamps_s);
+  void clearCrossRoads();
 
   // -- queries --
   double groundAt(double x, double y, double* gx = nullptr, double* gy = nullptr) const;
@@ -812,6 +813,24 @@ SimulatedWorld::Impl::placeMovingCars(const PoseVector& poses,
                     static_cast<float>(rng.uniform(0.1, 0.9))});
 }
 
+void
+SimulatedWorld::Impl::clearCrossRoads()
+{
+  if (!traffic)
+    return;
+  // Static objects whose footprint circle reaches a cross road go: an intersection.
+  for (const auto& road : traffic->crossRoads()) {
+    auto onRoad = [&road](const Primitive& p) {
+      const Eigen::Vector2d d = Eigen::Vector2d(p.cx, p.cy) - road.centre_xy;
+      const double along = std::abs(d.dot(road.along));
+      const double across = std::abs(d.x() * road.along.y() - d.y() * road.along.x());
+      const double r = p.footprintRadius();
+      return along < road.half_length_m + r && across < road.half_width_m + r;
+    };
+    prims.erase(std::remove_if(prims.begin(), prims.end(), onRoad), prims.end());
+  }
+}
+
 std::vector<MovingVehicle>
 SimulatedWorld::Impl::movingVehicles(double time_s) const
 {
@@ -963,8 +982,9 @@ SimulatedWorld::SimulatedWorld(const WorldParams& params,
     impl_->params.corridor_half_width_m = std::max(
         params.corridor_half_width_m, params.traffic.oncoming_lane_offset_m + 1.5);
   impl_->placeObjects();
-  impl_->buildRayGrid();
   impl_->placeMovingCars(T_world_body, timestamps_s);
+  impl_->clearCrossRoads();
+  impl_->buildRayGrid();
 }
 
 SimulatedWorld::~SimulatedWorld() = default;

@@ -5,7 +5,9 @@
 /// and cross traffic at its stops (TrafficMode::kRealistic), and the piecewise
 /// constant-acceleration motion profiles they and generatePath's stops are made of.
 
+#include <Eigen/Core>
 #include <cstdint>
+#include <memory>
 #include <pcl/slam/lidar_simulator.h>
 #include <vector>
 
@@ -64,6 +66,13 @@ struct VehicleBox
   float reflectivity;
 };
 
+/// \brief The road the cross traffic of one ego stop drives on: a rectangle.
+struct CrossRoad
+{
+  Eigen::Vector2d centre_xy, along; ///< centre and unit direction of its centre line
+  double half_length_m, half_width_m;
+};
+
 /// \brief The few boxes (body and cabin, cab and cargo, one for a bus) of \a vehicle.
 void vehicleBoxes(const MovingVehicle& vehicle, std::vector<VehicleBox>& boxes);
 
@@ -93,6 +102,9 @@ public:
 
   /// \brief Half width of the road the lanes need around the path.
   double roadHalfWidth() const;
+
+  /// \brief The cross roads (one per ego stop): static objects must keep off them.
+  std::vector<CrossRoad> crossRoads() const;
 
 private:
   struct Impl;
