@@ -2,8 +2,10 @@
 /// \file lidar_simulator.h
 /// \brief A LiDAR sequence simulator: a procedural, deterministic world built around
 /// a trajectory (ground following the path's elevation, buildings, trees, poles,
-/// parked cars, walls and fences, optional moving cars) and ray-cast sensor models
-/// (Velodyne HDL-64E, VLP-16, Ouster OS1-64, handheld Ouster OS0-128).
+/// parked cars, walls and fences, optional moving traffic: cars along the path or
+/// realistic lanes, stops and cross traffic timed to the ego, see TrafficParams) and
+/// ray-cast sensor models (Velodyne HDL-64E, VLP-16, Ouster OS1-64, handheld Ouster
+/// OS0-128). Generated paths can stop and go (PathParams::num_stops).
 ///
 /// Pipeline: trajectory (T_world_body) -> SimulatedWorld (built once, consistent for
 /// every pose) -> per frame: sensor pose T_world_sensor = T_world_body *
@@ -150,25 +152,31 @@ std::string toString(TrafficMode mode);
 
 /// \brief Parameters of the moving traffic.
 ///
-/// TrafficMode::kRealistic knows the ego vehicle's timing (the world's timestamps):
+/// TrafficMode::kRealistic knows the ego vehicle's timing (the world's timestamps) and
+/// is deterministic for the seed:
 /// - a lane lane_offset_m left of the path in the ego's direction and an oncoming lane
-///   oncoming_lane_offset_m left of it, each with vehicles of varied speed (lane speed
-///   9-14 m/s, each vehicle +- ~1 m/s over time), size and kind: cars, vans and a
-///   share heavy_vehicle_fraction of trucks and buses (7-12.5 m long, 3-3.8 m tall);
-///   vehicles in one lane never overlap, none enters the ego's lane;
-/// - at every ego standstill longer than light_stop_min_s (a red light, detected from
-///   the poses and timestamps): companions_per_stop cars or vans in the lane beside
-///   come up from behind, brake with the ego, stand beside / just behind it, and pull
-///   away with their own acceleration 0.7-2.5 s before or after the ego does; free
-///   lane traffic keeps away from the light while it is red; cross traffic on a
-///   perpendicular road 10-25 m ahead of the ego, both directions, 8-14 m/s, passes in
-///   front of it during the stop only (every crossing car has passed the path 2.5 s
-///   before the ego moves on);
+///   oncoming_lane_offset_m left of it. Each lane has its own speed (9-13 and 10-14
+///   m/s) and vehicles of varied size and kind: cars, vans and a share
+///   heavy_vehicle_fraction of trucks and buses (7-12.5 m long, 3-3.8 m tall). A lane
+///   never overlaps itself (bumper gaps >= 3 m along the lane, also in bends) and no
+///   lane enters the ego's;
+/// - every ego standstill longer than light_stop_min_s (detected from the poses and
+///   timestamps) is a red light: companions_per_stop cars or vans in the lane beside
+///   brake with the ego 3-6 s before it stands, stand beside it (the first within
+///   -2.5..+0.5 m of its centre) or queue behind, and pull away with their own
+///   acceleration (1.2-3 m/s^2) 0.7-1.5 s before or 0.7-2.5 s after the ego does; the
+///   free vehicles of both lanes that arrive during the red queue (the oncoming ones
+///   beyond the cross road) and go one after the other;
+/// - cross traffic on a perpendicular road 10-25 m ahead of the stopped ego, both
+///   directions, 8-14 m/s, 2-4.5 s apart: it crosses the path only while the ego
+///   stands (the last car 2.5 s before it moves on), visible +- 60 m along its road;
+///   the static objects on that road are removed (an open intersection);
 /// - the road is widened: static objects keep oncoming_lane_offset_m + 1.5 m from the
 ///   path (at least corridor_half_width_m).
-/// Vehicles exist within 250 m of the ego's position at the query time (they appear
-/// and vanish beyond that). Vehicles are a few boxes each, as cheap to ray-cast as the
-/// along-path cars.
+/// Lane vehicles are shown within 150 m of arc length of the ego's position at the
+/// query time (less where the path comes back to a place sooner, so the two passes'
+/// lanes do not meet), cross traffic within 250 m of it. Vehicles are two boxes
+/// (body and cabin, cab and cargo) or one (bus): as cheap to ray-cast as before.
 struct TrafficParams
 {
   TrafficMode mode = TrafficMode::kAlongPath;
