@@ -20,6 +20,7 @@ constexpr double kReachM = 250.0;      ///< cross traffic exists this close to t
 constexpr double kLaneWindowM = 150.0; ///< lane vehicles: at most this much arc length
                                        ///< around it
 constexpr double kCrossHalfLengthM = 60.0; ///< cross traffic drives +- this from the path
+constexpr double kStandingMps = 0.25;      ///< the ego is standing below this speed
 constexpr double kLaneMarginM = 3.0; ///< least bumper gap in a lane (inner side of bends)
 
 /// Uniform numbers from a counter: a stream per (seed, purpose, index).
@@ -70,6 +71,27 @@ drawVehicle(Draw& draw, double heavy_fraction)
   v.height_m = draw(k.height_m[0], k.height_m[1]);
   v.reflectivity = static_cast<float>(draw(k.reflectivity[0], k.reflectivity[1]));
   return v;
+}
+
+/// Whether two yaw-oriented rectangles (centre, yaw, half length, half width) overlap:
+/// no separating axis among their four edge directions.
+bool
+rectanglesOverlap(const double a[5], const double b[5])
+{
+  for (const double* axis_of : {a, b})
+    for (int k = 0; k < 2; ++k) {
+      const double yaw = axis_of[2] + k * 0.5 * kPi;
+      const double ux = std::cos(yaw), uy = std::sin(yaw);
+      auto reach = [ux, uy](const double r[5]) { // half extent of r along u
+        const double c = std::abs(std::cos(r[2]) * ux + std::sin(r[2]) * uy);
+        const double s = std::abs(-std::sin(r[2]) * ux + std::cos(r[2]) * uy);
+        return r[3] * c + r[4] * s;
+      };
+      const double gap = std::abs((b[0] - a[0]) * ux + (b[1] - a[1]) * uy);
+      if (gap > reach(a) + reach(b))
+        return false;
+    }
+  return true;
 }
 
 /// Distance covered \a tau_s after starting from rest at \a accel_mps2 up to \a v_mps.
@@ -394,10 +416,19 @@ TrafficModel::Impl::findStops(const PoseVector& poses, std::uint64_t seed)
   for (std::size_t i = 1; i < poses.size(); ++i)
     ego_s[i] = ego_s[i - 1] +
                (poses[i].translation() - poses[i - 1].translation()).head<2>().norm();
-  // A stop: frames that stay within 0.2 m for at least light_stop_min_s.
+  // A stop: consecutive frames slower than 0.25 m/s (ground truth of a standing car
+  // jitters by millimetres) for at least light_stop_min_s.
+  auto still = [&](std::size_t k) {
+    return k + 1 < poses.size() &&
+           ego_s[k + 1] - ego_s[k] < kStandingMps * (ego_t[k + 1] - ego_t[k]);
+  };
   for (std::size_t i = 0; i < poses.size();) {
-    std::size_t j = i;
-    while (j + 1 < poses.size() && ego_s[j + 1] - ego_s[i] < 0.2)
+    if (!still(i)) {
+      ++i;
+      continue;
+    }
+    std::size_t j = i + 1; // frames i..j stand
+    while (still(j))
       ++j;
     if (ego_t[j] - ego_t[i] >= params.light_stop_min_s) {
       const Eigen::Vector3d x = poses[i].linear().col(0);
@@ -550,7 +581,7 @@ TrafficModel::Impl::placeCrossTraffic(std::uint64_t seed)
       // Right-hand traffic: a car heading left drives in the far lane.
       const Eigen::Vector2d lane = centre + direction * 1.75 * ahead;
       const Eigen::Vector2d dir = direction * left;
-      double centre_s = stop.from_s + road(1.0, 3.0);
+      double centre_s = stop.from_s + road(0.5, 2.0);
       const Agent* prev = nullptr;
       for (std::uint64_t m = 0; centre_s <= stop.to_s - 2.5; ++m) {
         Draw draw(seed, 7, (k * 2 + (direction > 0)) * 1024 + m);
@@ -612,6 +643,22 @@ TrafficModel::TrafficModel(const TrafficParams& params,
                                   std::to_string(i) +
                                   "] = " + std::to_string(m.ego_t[i]));
   m.findStops(T_world_body, seed);
+  // Headings from the poses' orientation, interpolated along the arc length: the
+  // direction between two poses is noise where the ego stands (ground truth jitters by
+  // millimetres), and the lanes beside it would spin.
+  std::vector<double> yaw;
+  for (const Pose3d& T : T_world_body)
+    yaw.push_back(std::atan2(T.linear()(1, 0), T.linear()(0, 0)));
+  for (TrafficPathPoint& p : m.path) {
+    const std::size_t k =
+        std::upper_bound(m.ego_s.begin(), m.ego_s.end(), p.s_m) - m.ego_s.begin();
+    if (k == 0 || k == m.ego_s.size()) {
+      p.heading_rad = yaw[k == 0 ? 0 : k - 1];
+      continue;
+    }
+    const double f = (p.s_m - m.ego_s[k - 1]) / (m.ego_s[k] - m.ego_s[k - 1]);
+    p.heading_rad = yaw[k - 1] + f * std::remainder(yaw[k] - yaw[k - 1], 2.0 * kPi);
+  }
   // Where the path comes back to a place, the lanes of both passes meet: show lane
   // vehicles within less than half the shortest revisit (in arc length) of the ego.
   std::vector<const TrafficPathPoint*> coarse;
@@ -676,6 +723,7 @@ TrafficModel::vehiclesAt(double time_s) const
   double ex, ey, eh;
   const double ego_s = m.egoS(time_s);
   m.pathAt(ego_s, ex, ey, eh);
+  const double ego_box[5] = {ex, ey, eh, 2.6, 1.3};
   auto emit = [&](const Agent& a, double x, double y, double yaw) {
     if (std::hypot(x - ex, y - ey) > kReachM)
       return;
@@ -692,10 +740,15 @@ TrafficModel::vehiclesAt(double time_s) const
       return;
     double x, y, h;
     m.pathAt(s, x, y, h);
-    emit(a,
-         x - a.lateral_m * std::sin(h),
-         y + a.lateral_m * std::cos(h),
-         a.direction > 0 ? h : h + kPi);
+    x -= a.lateral_m * std::sin(h);
+    y += a.lateral_m * std::cos(h);
+    // In a bend much tighter than the lane offset (a turn at a crossing) the lane's
+    // geometry folds onto the ego's: such a vehicle is not shown (ego 4.6 x 2 m plus
+    // 0.3 m).
+    const double vehicle[5] = {x, y, h, 0.5 * a.shape.length_m, 0.5 * a.shape.width_m};
+    if (rectanglesOverlap(vehicle, ego_box))
+      return;
+    emit(a, x, y, a.direction > 0 ? h : h + kPi);
   };
   std::vector<double> s;
   m.companionPositions(time_s, s);
