@@ -160,8 +160,8 @@ std::string toString(TrafficMode mode);
 ///   heavy_vehicle_fraction of trucks and buses (7-12.5 m long, 3-3.8 m tall). A lane
 ///   never overlaps itself (bumper gaps >= 3 m along the lane, also in bends) and no
 ///   lane enters the ego's;
-/// - every ego standstill longer than light_stop_min_s (detected from the poses and
-///   timestamps) is a red light: companions_per_stop cars or vans in the lane beside
+/// - every ego standstill longer than light_stop_min_s (consecutive frames slower than
+///   0.25 m/s, from the poses and timestamps) is a red light: companions_per_stop cars or vans in the lane beside
 ///   brake with the ego 3-6 s before it stands, stand beside it (the first within
 ///   -2.5..+0.5 m of its centre) or queue behind, and pull away with their own
 ///   acceleration (1.2-3 m/s^2) 0.7-1.5 s before or 0.7-2.5 s after the ego does; the
@@ -175,7 +175,10 @@ std::string toString(TrafficMode mode);
 ///   path (at least corridor_half_width_m).
 /// Lane vehicles are shown within 150 m of arc length of the ego's position at the
 /// query time (less where the path comes back to a place sooner, so the two passes'
-/// lanes do not meet), cross traffic within 250 m of it. Vehicles are two boxes
+/// lanes do not meet), cross traffic within 250 m of it. The lanes follow the path's
+/// geometry and the poses' heading; where a bend is much tighter than the lane offset
+/// (a turn at a crossing) a lane vehicle that would touch the ego is not shown. Vehicles
+/// are two boxes
 /// (body and cabin, cab and cargo) or one (bus): as cheap to ray-cast as before.
 struct TrafficParams
 {
