@@ -161,12 +161,12 @@ std::string toString(TrafficMode mode);
 ///   never overlaps itself (bumper gaps >= 3 m along the lane, also in bends) and no
 ///   lane enters the ego's;
 /// - every ego standstill longer than light_stop_min_s (consecutive frames slower than
-///   0.25 m/s, from the poses and timestamps) is a red light: companions_per_stop cars or vans in the lane beside
-///   brake with the ego 3-6 s before it stands, stand beside it (the first within
-///   -2.5..+0.5 m of its centre) or queue behind, and pull away with their own
-///   acceleration (1.2-3 m/s^2) 0.7-1.5 s before or 0.7-2.5 s after the ego does; the
-///   free vehicles of both lanes that arrive during the red queue (the oncoming ones
-///   beyond the cross road) and go one after the other;
+///   0.25 m/s, from the poses and timestamps) is a red light: companions_per_stop cars or
+///   vans in the lane beside brake with the ego 3-6 s before it stands, stand beside it
+///   (the first within -2.5..+0.5 m of its centre) or queue behind, and pull away with
+///   their own acceleration (1.2-3 m/s^2) 0.7-1.5 s before or 0.7-2.5 s after the ego
+///   does; the free vehicles of both lanes that arrive during the red queue (the oncoming
+///   ones beyond the cross road) and go one after the other;
 /// - cross traffic on a perpendicular road 10-25 m ahead of the stopped ego, both
 ///   directions, 8-14 m/s, 2-4.5 s apart: it crosses the path only while the ego
 ///   stands (the last car 2.5 s before it moves on), visible +- 60 m along its road;
