@@ -9,17 +9,18 @@
 #                            [-- odometry flags]
 #
 #   Realistic by default: raw sweeps (each column at its firing time) written as PCD
-#   with a per-point `time` field, moving cars, sensor imperfections (per-beam biases,
-#   outliers, mixed pixels, intensity noise), and reporting seed 101 (seeds below 100
-#   are for tuning: never report on them). -c: the clean world instead (instantaneous
-#   scans, no traffic, .bin, seed 1: the figures of earlier sessions). -e 5 takes every
-#   5th scan (2 Hz); -S os0-128 simulates the tilted handheld sensor (and passes -sensor
-#   os0-128 to the odometry). Prints the settings, one table row per sequence (with the
-#   largest per-frame error of the relative motion, "max_jump_m"), and writes
-#   OUT_DIR/summary.tsv. Every figure it prints is simulated.
-#   The realistic world is harder too: mixed scenes along each drive (suburb, urban
-#   canyon, highway, open field, tunnel in 150-500 m stretches), rough ground and
-#   porous vegetation; -c keeps the clean suburb.
+#   with a per-point `time` field; realistic traffic (lanes both ways with trucks and
+#   buses, cars stopping beside the ego, cross traffic at its stops); sensor
+#   imperfections (per-beam biases, outliers, mixed pixels, intensity noise); mixed
+#   scenes along each drive (suburb, urban canyon, highway, open field, tunnel in
+#   150-500 m stretches), rough ground and porous vegetation; reporting seed 101 (seeds
+#   below 100 are for tuning: never report on them). -c: the clean world instead
+#   (instantaneous scans, no traffic, .bin, seed 1, the clean suburb: the figures of
+#   earlier sessions). -e 5 takes every 5th scan (2 Hz); -S os0-128 simulates the
+#   tilted handheld sensor (and passes -sensor os0-128 to the odometry). Prints the
+#   settings, one table row per sequence (with the largest per-frame error of the
+#   relative motion, "max_jump_m"), and writes OUT_DIR/summary.tsv. Every figure it
+#   prints is simulated.
 set -euo pipefail
 
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -61,8 +62,8 @@ if (( clean )); then
   world=(-seed "$seed")
   settings="clean world: instantaneous scans, no traffic, .bin, seed $seed"
 else
-  world=(-seed "$seed" -raw-sweep -moving-cars -imperfections -format pcd)
-  settings="realistic: raw sweeps (PCD time field), moving cars, sensor imperfections, seed $seed"
+  world=(-seed "$seed" -raw-sweep -moving-cars -traffic realistic -imperfections -format pcd)
+  settings="realistic: raw sweeps (PCD time field), realistic traffic, sensor imperfections, seed $seed"
   (( seed < 100 )) && settings="$settings (a TUNING seed: do not report)"
 fi
 if (( ! clean )); then

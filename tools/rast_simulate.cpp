@@ -13,6 +13,8 @@
 /// `-raw-sweep` writes raw (motion-distorted) sweeps instead of instantaneous scans;
 /// the spin convention is documented in pcl/slam/lidar_simulator.h. `-imperfections`
 /// adds the sensor imperfections of pcl::rast::SensorImperfectionParams.
+/// `-moving-cars -traffic realistic` drives realistic traffic around the ego vehicle
+/// (pcl::rast::TrafficParams); `-stops N` makes a generated path stop and go.
 
 #include "cli.h"
 
@@ -37,6 +39,7 @@ run(int argc, char** argv)
   int threads = params.num_threads;
   double rate_hz = path_params.rate_hz, speed_mps = path_params.speed_mps;
   bool moving_cars = params.world.moving_cars;
+  std::string traffic = pcl::rast::toString(params.world.traffic.mode);
   bool raw_sweep = params.raw_sweep;
   bool imperfections = params.imperfections;
   std::string scene = pcl::rast::toString(params.world.scene);
@@ -75,7 +78,24 @@ run(int argc, char** argv)
   args.addDouble("laps", "generated loop/eight: times the closed path is driven", &laps);
   args.addDouble(
       "rate", "frame rate in Hz (generated paths, times of KITTI files)", &rate_hz);
-  args.addSwitch("moving-cars", "add cars driving along the path", &moving_cars);
+  args.addSwitch("moving-cars", "add moving traffic (model: -traffic)", &moving_cars);
+  args.addChoice("traffic",
+                 "traffic of -moving-cars: along-path (cars ping-pong beside the path) "
+                 "or realistic (lanes both ways, trucks and buses, cars stopping beside "
+                 "the ego, cross traffic ahead while it stands > 2 s)",
+                 &traffic,
+                 {"along-path", "realistic"});
+  args.addInt("stops",
+              "generated path: number of stops (brake, stand, accelerate), evenly "
+              "spread over the drive",
+              &path_params.num_stops);
+  args.addDouble("stop-duration",
+                 "generated path: seconds standing still per stop",
+                 &path_params.stop_duration_s);
+  args.addDouble("accel",
+                 "generated path: braking and starting acceleration of the stops, "
+                 "m/s^2",
+                 &path_params.acceleration_mps2);
   args.addSwitch("raw-sweep",
                  "raw (motion-distorted) sweeps: each column from the pose at its "
                  "firing time, azimuth +180 deg at t - T/2, 0 at t, -180 deg at "
@@ -104,8 +124,13 @@ run(int argc, char** argv)
 
   if (traj.empty() == path.empty())
     throw std::invalid_argument("give exactly one of -traj FILE and -path TYPE");
-  if (!traj.empty() && (args.given("frames") || args.given("speed") || args.given("laps")))
-    throw std::invalid_argument("-frames, -speed and -laps apply to -path only");
+  if (!traj.empty() &&
+      (args.given("frames") || args.given("speed") || args.given("laps") ||
+       args.given("stops") || args.given("stop-duration") || args.given("accel")))
+    throw std::invalid_argument(
+        "-frames, -speed, -laps, -stops, -stop-duration and -accel apply to -path only");
+  if (args.given("traffic") && !moving_cars)
+    throw std::invalid_argument("-traffic " + traffic + " needs -moving-cars");
   if (path.empty() == false && args.given("traj-frame"))
     throw std::invalid_argument("-traj-frame applies to -traj only");
   if (seed < 0)
@@ -118,6 +143,7 @@ run(int argc, char** argv)
   params.sensor = pcl::rast::sensorModelFromString(sensor);
   params.seed = static_cast<std::uint64_t>(seed);
   params.world.moving_cars = moving_cars;
+  params.world.traffic.mode = pcl::rast::trafficModeFromString(traffic);
   params.raw_sweep = raw_sweep;
   params.imperfections = imperfections;
   params.world.mixed_scenes = scene == "mixed";
@@ -154,7 +180,8 @@ run(int argc, char** argv)
     path_params.type = pcl::rast::pathTypeFromString(path);
     path_params.rate_hz = rate_hz;
     if (!(laps >= 1.0 && laps <= 100.0))
-      throw std::invalid_argument("-laps must be in [1, 100], got " + std::to_string(laps));
+      throw std::invalid_argument("-laps must be in [1, 100], got " +
+                                  std::to_string(laps));
     path_params.revisit_fraction = laps - 1.0;
     if (path_params.type == pcl::rast::PathType::kStraight && args.given("laps"))
       throw std::invalid_argument("-laps applies to -path loop and eight only");

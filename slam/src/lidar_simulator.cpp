@@ -10,6 +10,7 @@
 #include <pcl/slam/lidar_simulator.h>
 
 #include "simulator_hash.h"
+#include "simulator_traffic.h"
 #include <pcl/slam/sequence_reader.h> // writeKittiBin
 #include <sstream>
 #include <stdexcept>
@@ -364,6 +365,23 @@ PathParams::isValid(std::string* why) const
     return fail("elevation_amplitude_m must be in [0, 50]");
   if (!(revisit_fraction >= 0.0 && revisit_fraction <= 99.0))
     return fail("revisit_fraction must be in [0, 99]");
+  if (num_stops < 0 || num_stops > 1000)
+    return fail("num_stops must be in [0, 1000], got " + std::to_string(num_stops));
+  if (num_stops == 0)
+    return true;
+  if (!(stop_duration_s > 0.0 && stop_duration_s <= 3600.0))
+    return fail("stop_duration_s must be in (0, 3600], got " +
+                std::to_string(stop_duration_s));
+  if (!(acceleration_mps2 >= 0.1 && acceleration_mps2 <= 20.0))
+    return fail("acceleration_mps2 must be in [0.1, 20], got " +
+                std::to_string(acceleration_mps2));
+  // Each stop (brake, stand, accelerate) must fit in its share of the duration.
+  const double duration_s = (num_frames - 1) / rate_hz;
+  const double per_stop_s = stop_duration_s + 2.0 * speed_mps / acceleration_mps2;
+  if (per_stop_s > duration_s / (num_stops + 1))
+    return fail(std::to_string(num_stops) + " stops of " + std::to_string(per_stop_s) +
+                " s (braking, stop_duration_s, starting) do not fit in " +
+                std::to_string(duration_s) + " s of num_frames / rate_hz");
   return true;
 }
 
@@ -374,7 +392,20 @@ generatePath(const PathParams& params)
   if (!params.isValid(&why))
     throw std::invalid_argument("generatePath: " + why);
   const double step = params.speed_mps / params.rate_hz;
-  const double driven = step * (params.num_frames - 1);
+  // Stop-and-go: arc length over time with the stops evenly spread over the duration.
+  const double duration_s = (params.num_frames - 1) / params.rate_hz;
+  simulator_detail::MotionProfile profile(0.0, 0.0, params.speed_mps);
+  for (int k = 0; k < params.num_stops; ++k) {
+    const double centre_s = duration_s * (k + 1) / (params.num_stops + 1);
+    profile.addStopAtTime(centre_s - 0.5 * params.stop_duration_s,
+                          centre_s + 0.5 * params.stop_duration_s,
+                          params.acceleration_mps2,
+                          params.acceleration_mps2);
+  }
+  auto arcLength = [&](int i) {
+    return params.num_stops == 0 ? step * i : profile.at(i / params.rate_hz);
+  };
+  const double driven = arcLength(params.num_frames - 1);
 
   // Unit-size dense shape, scaled so that the driven length covers it 1 + revisit times.
   Polyline line;
@@ -416,7 +447,7 @@ generatePath(const PathParams& params)
   const double A = params.elevation_amplitude_m;
   const double ds = std::min(0.5, std::max(1e-3, 0.25 * line.s.back()));
   for (int i = 0; i < params.num_frames; ++i) {
-    double s = step * i;
+    double s = arcLength(i);
     if (closed)
       s = std::fmod(s, line.s.back());
     const Eigen::Vector2d p = line.at(s);
@@ -556,8 +587,11 @@ LidarSimulator::LidarSimulator(const LidarSimulatorParams& params,
       }
     }
   }
+  std::vector<double> times_s(T_world_body_.size());
+  for (std::size_t i = 0; i < times_s.size(); ++i)
+    times_s[i] = timestamp(i);
   world_ = std::make_shared<SimulatedWorld>(
-      params.world, T_world_body_, spec_.mount_height_m, params.seed);
+      params.world, T_world_body_, spec_.mount_height_m, params.seed, times_s);
 }
 
 double

@@ -11,6 +11,7 @@
 #include <pcl/slam/lidar_simulator.h>
 
 #include "simulator_hash.h"
+#include "simulator_traffic.h"
 #include <queue>
 #include <sstream>
 #include <stdexcept>
@@ -388,6 +389,8 @@ WorldParams::isValid(std::string* why) const
     return fail("tree_probability + pole_probability must be <= 1");
   if (!(ground_smoothing_m > 0.0 && ground_smoothing_m <= 200.0))
     return fail("ground_smoothing_m must be in (0, 200]");
+  if (!traffic.isValid(why))
+    return false;
   if (num_moving_cars < 0 || num_moving_cars > 1000)
     return fail("num_moving_cars must be in [0, 1000]");
   if (!(lane_offset_m >= 0.0 && lane_offset_m <= 50.0))
@@ -423,7 +426,8 @@ struct SimulatedWorld::Impl
   std::vector<float> cell_top;
   double max_top = -kInf;
 
-  std::vector<MovingCar> cars;
+  std::vector<MovingCar> cars;                             ///< TrafficMode::kAlongPath
+  std::unique_ptr<simulator_detail::TrafficModel> traffic; ///< TrafficMode::kRealistic
 
   // -- construction steps --
   void buildPath(const PoseVector& poses, double body_height_m);
@@ -437,7 +441,8 @@ struct SimulatedWorld::Impl
   template <class ForLots, class Keep>
   void placeSceneObjects(const ForLots& forLots, const Keep& keep);
   void buildRayGrid();
-  void placeMovingCars();
+  void placeMovingCars(const PoseVector& poses, const std::vector<double>& timestamps_s);
+  void clearCrossRoads();
 
   // -- queries --
   /// The ground without its roughness (height field of the path plus embankments).
@@ -506,7 +511,8 @@ struct SimulatedWorld::Impl
                  bool march,
                  double& t,
                  double& cos_inc) const;
-  /// Moving-car boxes at time t.
+  /// Moving vehicles and their boxes at time t.
+  std::vector<MovingVehicle> movingVehicles(double time_s) const;
   std::vector<Primitive> movingCarBoxes(double time_s) const;
   /// Both castRays: ray r starts at origins[r] (kOwnOrigins) or all at origins[0].
   /// Each run of consecutive rays with the same origin shares the ground below it and
@@ -1293,10 +1299,24 @@ SimulatedWorld::Impl::buildRayGrid()
 }
 
 void
-SimulatedWorld::Impl::placeMovingCars()
+SimulatedWorld::Impl::placeMovingCars(const PoseVector& poses,
+                                      const std::vector<double>& timestamps_s)
 {
   if (!params.moving_cars || path.size() < 2)
     return;
+  if (params.traffic.mode == TrafficMode::kRealistic) {
+    std::vector<simulator_detail::TrafficPathPoint> points;
+    points.reserve(path.size());
+    for (const auto& p : path)
+      points.push_back({p.x, p.y, p.heading, p.s});
+    traffic = std::make_unique<simulator_detail::TrafficModel>(params.traffic,
+                                                               params.lane_offset_m,
+                                                               std::move(points),
+                                                               poses,
+                                                               timestamps_s,
+                                                               seed);
+    return;
+  }
   Rng rng(hashOf(seed, 7));
   const double length = path.back().s;
   for (int k = 0; k < params.num_moving_cars; ++k)
@@ -1308,12 +1328,32 @@ SimulatedWorld::Impl::placeMovingCars()
                     static_cast<float>(rng.uniform(0.1, 0.9))});
 }
 
-std::vector<Primitive>
-SimulatedWorld::Impl::movingCarBoxes(double time_s) const
+void
+SimulatedWorld::Impl::clearCrossRoads()
 {
-  std::vector<Primitive> boxes;
+  if (!traffic)
+    return;
+  // Static objects whose footprint circle reaches a cross road go: an intersection.
+  for (const auto& road : traffic->crossRoads()) {
+    auto onRoad = [&road](const Primitive& p) {
+      const Eigen::Vector2d d = Eigen::Vector2d(p.cx, p.cy) - road.centre_xy;
+      const double along = std::abs(d.dot(road.along));
+      const double across = std::abs(d.x() * road.along.y() - d.y() * road.along.x());
+      const double r = p.footprintRadius();
+      return along < road.half_length_m + r && across < road.half_width_m + r;
+    };
+    prims.erase(std::remove_if(prims.begin(), prims.end(), onRoad), prims.end());
+  }
+}
+
+std::vector<MovingVehicle>
+SimulatedWorld::Impl::movingVehicles(double time_s) const
+{
+  if (traffic)
+    return traffic->vehiclesAt(time_s);
+  std::vector<MovingVehicle> vehicles;
   if (cars.empty())
-    return boxes;
+    return vehicles;
   const double length = path.back().s;
   for (const auto& car : cars) {
     // Drive back and forth along the path (ping-pong at its ends).
@@ -1331,20 +1371,59 @@ SimulatedWorld::Impl::movingCarBoxes(double time_s) const
         });
     const PathSample& ps = it == path.end() ? path.back() : *it;
     const double nx = -std::sin(ps.heading), ny = std::cos(ps.heading);
-    const double x = ps.x + params.lane_offset_m * nx,
-                 y = ps.y + params.lane_offset_m * ny;
-    const double yaw = ps.heading + (reversed ? kPi : 0.0);
-    const double g = groundAt(x, y);
-    boxes.push_back(
-        makeBox(x, y, g + 0.25, g + 1.0, car.length, car.width, yaw, car.reflectivity));
-    boxes.push_back(makeBox(x,
-                            y,
+    MovingVehicle v;
+    v.id = static_cast<int>(vehicles.size());
+    v.x_m = ps.x + params.lane_offset_m * nx;
+    v.y_m = ps.y + params.lane_offset_m * ny;
+    v.yaw_rad = ps.heading + (reversed ? kPi : 0.0);
+    v.length_m = car.length;
+    v.width_m = car.width;
+    v.reflectivity = car.reflectivity;
+    vehicles.push_back(v);
+  }
+  return vehicles;
+}
+
+std::vector<Primitive>
+SimulatedWorld::Impl::movingCarBoxes(double time_s) const
+{
+  std::vector<Primitive> boxes;
+  if (traffic) {
+    std::vector<simulator_detail::VehicleBox> parts;
+    for (const MovingVehicle& v : traffic->vehiclesAt(time_s)) {
+      parts.clear();
+      simulator_detail::vehicleBoxes(v, parts);
+      const double g = groundAt(v.x_m, v.y_m);
+      for (const auto& b : parts)
+        boxes.push_back(makeBox(b.x_m,
+                                b.y_m,
+                                g + b.z_min_m,
+                                g + b.z_max_m,
+                                b.length_m,
+                                b.width_m,
+                                b.yaw_rad,
+                                b.reflectivity));
+    }
+    return boxes;
+  }
+  for (const MovingVehicle& v : movingVehicles(time_s)) {
+    const double g = groundAt(v.x_m, v.y_m);
+    boxes.push_back(makeBox(v.x_m,
+                            v.y_m,
+                            g + 0.25,
+                            g + 1.0,
+                            v.length_m,
+                            v.width_m,
+                            v.yaw_rad,
+                            v.reflectivity));
+    boxes.push_back(makeBox(v.x_m,
+                            v.y_m,
                             g + 1.0,
                             g + 1.5,
-                            0.55 * car.length,
-                            0.9 * car.width,
-                            yaw,
-                            car.reflectivity));
+                            0.55 * v.length_m,
+                            0.9 * v.width_m,
+                            v.yaw_rad,
+                            v.reflectivity));
   }
   return boxes;
 }
@@ -1505,7 +1584,8 @@ SimulatedWorld::Impl::porousStop(std::uint32_t id,
 SimulatedWorld::SimulatedWorld(const WorldParams& params,
                                const PoseVector& T_world_body,
                                double body_height_m,
-                               std::uint64_t seed)
+                               std::uint64_t seed,
+                               const std::vector<double>& timestamps_s)
     : impl_(std::make_unique<Impl>())
 {
   std::string why;
@@ -1516,15 +1596,25 @@ SimulatedWorld::SimulatedWorld(const WorldParams& params,
   if (!(body_height_m >= 0.0 && body_height_m < 100.0))
     throw std::invalid_argument("SimulatedWorld: body_height_m out of [0, 100): " +
                                 std::to_string(body_height_m));
+  if (!timestamps_s.empty() && timestamps_s.size() != T_world_body.size())
+    throw std::invalid_argument("SimulatedWorld: " + std::to_string(timestamps_s.size()) +
+                                " timestamps for " + std::to_string(T_world_body.size()) +
+                                " poses");
   impl_->params = params;
   impl_->seed = seed;
   impl_->buildPath(T_world_body, body_height_m);
   impl_->buildDistanceField();
   impl_->buildScenes();
   impl_->buildGround();
+  const bool realistic =
+      params.moving_cars && params.traffic.mode == TrafficMode::kRealistic;
+  if (realistic) // the lanes need a wider road: keep static objects off it
+    impl_->params.corridor_half_width_m = std::max(
+        params.corridor_half_width_m, params.traffic.oncoming_lane_offset_m + 1.5);
   impl_->placeObjects();
+  impl_->placeMovingCars(T_world_body, timestamps_s);
+  impl_->clearCrossRoads();
   impl_->buildRayGrid();
-  impl_->placeMovingCars();
 }
 
 SimulatedWorld::~SimulatedWorld() = default;
@@ -1569,6 +1659,12 @@ std::size_t
 SimulatedWorld::numPrimitives() const
 {
   return impl_->prims.size();
+}
+
+std::vector<MovingVehicle>
+SimulatedWorld::movingVehicles(double time_s) const
+{
+  return impl_->movingVehicles(time_s);
 }
 
 bool

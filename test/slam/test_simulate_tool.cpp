@@ -129,6 +129,48 @@ TEST_F(SimulateTool, BadArgumentsExitOne)
   EXPECT_FALSE(fs::exists(dir_ / "seq" / "poses.txt"));
 }
 
+std::string
+readText(const fs::path& path)
+{
+  std::ifstream in(path);
+  return std::string((std::istreambuf_iterator<char>(in)), {});
+}
+
+TEST_F(SimulateTool, RealisticTrafficAndStops)
+{
+  // The generated path stands from ~16 s to ~24 s: frames 180 and 190 share a pose.
+  const std::string run = "-path straight -frames 400 -stops 1 -stop-duration 8 "
+                          "-sensor vlp16 -moving-cars -first 180 -last 190 -every 10 ";
+  ASSERT_EQ(runSimulate(run + "-traffic realistic -output " + out("real"), log_), 0)
+      << readText(log_);
+  ASSERT_EQ(runSimulate(run + "-traffic along-path -output " + out("along"), log_), 0);
+  const auto real = pcl::rast::readTrajectory((dir_ / "real" / "poses.txt").string());
+  ASSERT_EQ(real.poses.size(), 2u);
+  EXPECT_TRUE(real.poses[1].isApprox(real.poses[0], 1e-9));
+  EXPECT_EQ(countFiles(dir_ / "real" / "velodyne"), 2u);
+  // The traffic models differ in what the sensor sees.
+  EXPECT_NE(readText(dir_ / "real" / "velodyne" / "000000.bin"),
+            readText(dir_ / "along" / "velodyne" / "000000.bin"));
+}
+
+TEST_F(SimulateTool, BadTrafficAndStopValuesExitOne)
+{
+  const std::string o = " -output " + out();
+  EXPECT_EQ(runSimulate("-path loop -frames 5 -moving-cars -traffic jam" + o, log_), 1);
+  EXPECT_NE(readText(log_).find("jam"), std::string::npos) << readText(log_);
+  EXPECT_EQ(runSimulate("-path loop -frames 5 -traffic realistic" + o, log_), 1);
+  EXPECT_NE(readText(log_).find("-moving-cars"), std::string::npos) << readText(log_);
+  EXPECT_EQ(runSimulate("-path loop -frames 400 -stops -1" + o, log_), 1);
+  EXPECT_NE(readText(log_).find("num_stops"), std::string::npos) << readText(log_);
+  EXPECT_EQ(runSimulate("-path loop -frames 100 -stops 2" + o, log_), 1);
+  EXPECT_NE(readText(log_).find("do not fit"), std::string::npos) << readText(log_);
+  EXPECT_EQ(runSimulate("-path loop -frames 400 -stops 1 -accel 0" + o, log_), 1);
+  EXPECT_NE(readText(log_).find("acceleration_mps2"), std::string::npos)
+      << readText(log_);
+  EXPECT_EQ(runSimulate("-traj x.txt -stops 1" + o, log_), 1);
+  EXPECT_FALSE(fs::exists(dir_ / "seq" / "poses.txt"));
+}
+
 TEST_F(SimulateTool, ImperfectionsSwitch)
 {
   // Listed by -h (an unknown flag would exit 1 before the help).

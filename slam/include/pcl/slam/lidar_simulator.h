@@ -2,8 +2,10 @@
 /// \file lidar_simulator.h
 /// \brief A LiDAR sequence simulator: a procedural, deterministic world built around
 /// a trajectory (ground following the path's elevation, buildings, trees, poles,
-/// parked cars, walls and fences, optional moving cars) and ray-cast sensor models
-/// (Velodyne HDL-64E, VLP-16, Ouster OS1-64, handheld Ouster OS0-128).
+/// parked cars, walls and fences, optional moving traffic: cars along the path or
+/// realistic lanes, stops and cross traffic timed to the ego, see TrafficParams) and
+/// ray-cast sensor models (Velodyne HDL-64E, VLP-16, Ouster OS1-64, handheld Ouster
+/// OS0-128). Generated paths can stop and go (PathParams::num_stops).
 ///
 /// The world's scene type (SceneType: suburb, urban canyon, highway, open field,
 /// tunnel) is fixed for the whole path or, with WorldParams::mixed_scenes, changes
@@ -137,16 +139,115 @@ struct PathParams
   double rate_hz = 10.0;              ///< frames per second
   double height_m = 1.73;             ///< body origin above the ground
   double elevation_amplitude_m = 2.0; ///< gentle hills: +- this over ~300 m
-  double revisit_fraction = 0.15;     ///< loop/eight: extra laps driven after the first (0.15: 1.15 laps)
+  double revisit_fraction =
+      0.15; ///< loop/eight: extra laps driven after the first (0.15: 1.15 laps)
+  /// Stop-and-go: the body stops this many times, evenly spread over the drive's
+  /// duration: it brakes at acceleration_mps2, stands still for stop_duration_s (poses
+  /// identical, frames still stepping at rate_hz) and accelerates back to speed_mps.
+  /// 0: constant speed, bit-identical to the path without stops.
+  int num_stops = 0;
+  double stop_duration_s = 8.0;   ///< standstill per stop, seconds
+  double acceleration_mps2 = 2.0; ///< braking and starting, m/s^2 (cars: ~1.5-2.5)
 
   /// \brief True when every value is usable; otherwise \a why says which is not.
   bool isValid(std::string* why = nullptr) const;
 };
 
 /// \brief Body poses T_world_body of a generated path (x forward, z up, following
-/// the terrain's slope). The first pose is at the origin heading along +x.
+/// the terrain's slope). The first pose is at the origin heading along +x. Frame i is
+/// at time i / rate_hz; with PathParams::num_stops the speed profile brakes, stands
+/// and accelerates (stop k's standstill is centred at (k + 1) / (num_stops + 1) of the
+/// duration), so the path is shorter than speed_mps times the duration.
 /// \throws std::invalid_argument when \a params is invalid.
 PoseVector generatePath(const PathParams& params);
+
+/// \brief Models of the moving traffic (WorldParams::moving_cars).
+enum class TrafficMode
+{
+  kAlongPath, ///< cars ping-pong along the path, lane_offset_m left of it, 5-12 m/s,
+              ///< independent of the ego vehicle (the default; unchanged)
+  kRealistic  ///< lanes beside and opposite the ego, stops beside it, cross traffic
+};
+
+/// \brief Parse "along-path", "realistic".
+/// \throws std::invalid_argument naming the bad value.
+TrafficMode trafficModeFromString(const std::string& name);
+/// \brief The inverse of trafficModeFromString.
+std::string toString(TrafficMode mode);
+
+/// \brief Parameters of the moving traffic.
+///
+/// TrafficMode::kRealistic knows the ego vehicle's timing (the world's timestamps) and
+/// is deterministic for the seed:
+/// - a lane lane_offset_m left of the path in the ego's direction and an oncoming lane
+///   oncoming_lane_offset_m left of it. Each lane has its own speed (9-13 and 10-14
+///   m/s) and vehicles of varied size and kind: cars, vans and a share
+///   heavy_vehicle_fraction of trucks and buses (7-12.5 m long, 3-3.8 m tall). A lane
+///   never overlaps itself (bumper gaps >= 3 m along the lane, also in bends) and no
+///   lane enters the ego's;
+/// - every ego standstill longer than light_stop_min_s (consecutive frames slower than
+///   0.25 m/s, from the poses and timestamps) is a red light: companions_per_stop cars or
+///   vans in the lane beside brake with the ego 3-6 s before it stands, stand beside it
+///   (the first within -2.5..+0.5 m of its centre) or queue behind, and pull away with
+///   their own acceleration (1.2-3 m/s^2) 0.7-1.5 s before or 0.7-2.5 s after the ego
+///   does; the free vehicles of both lanes that arrive during the red queue (the oncoming
+///   ones beyond the cross road) and go one after the other;
+/// - cross traffic on a perpendicular road 10-25 m ahead of the stopped ego, both
+///   directions, 8-14 m/s, 2-4.5 s apart: it crosses the path only while the ego
+///   stands (the last car 2.5 s before it moves on), visible +- 60 m along its road;
+///   the static objects on that road are removed (an open intersection);
+/// - the road is widened: static objects keep oncoming_lane_offset_m + 1.5 m from the
+///   path (at least corridor_half_width_m).
+/// Lane vehicles are shown within 150 m of arc length of the ego's position at the
+/// query time (less where the path comes back to a place sooner, so the two passes'
+/// lanes do not meet), cross traffic within 250 m of it. The lanes follow the path's
+/// geometry and the poses' heading; where a bend is much tighter than the lane offset
+/// (a turn at a crossing) a lane vehicle that would touch the ego is not shown. Vehicles
+/// are two boxes
+/// (body and cabin, cab and cargo) or one (bus): as cheap to ray-cast as before.
+struct TrafficParams
+{
+  TrafficMode mode = TrafficMode::kAlongPath;
+  double oncoming_lane_offset_m = 6.5;  ///< oncoming lane: this far left of the path
+  double same_direction_gap_m = 60.0;   ///< mean gap between vehicles beside the ego
+  double oncoming_gap_m = 45.0;         ///< mean gap between oncoming vehicles
+  double heavy_vehicle_fraction = 0.15; ///< share of trucks and buses
+  int companions_per_stop = 2;          ///< cars that stop beside the ego at a light
+  double light_stop_min_s = 2.0;        ///< ego standstill that is a red light
+
+  bool isValid(std::string* why = nullptr) const;
+};
+
+/// \brief Kinds of moving vehicles (their size and box shape).
+enum class VehicleKind
+{
+  kCar,   ///< 3.8-4.9 m long, 1.4-1.6 m tall
+  kVan,   ///< 4.8-5.6 m long, 1.9-2.4 m tall
+  kTruck, ///< 7-10 m long, 3.2-3.8 m tall: cab and cargo box
+  kBus    ///< 11-12.5 m long, 3-3.3 m tall
+};
+
+/// \brief Where a moving vehicle drives.
+enum class TrafficLane
+{
+  kAlongPath,     ///< TrafficMode::kAlongPath
+  kSameDirection, ///< beside the ego, its direction
+  kOncoming,      ///< opposite direction
+  kCross          ///< perpendicular road ahead of a stopped ego
+};
+
+/// \brief A moving vehicle at one time: its bounding box on the ground (ground truth
+/// of the dynamic objects).
+struct MovingVehicle
+{
+  int id = 0; ///< stable over time
+  VehicleKind kind = VehicleKind::kCar;
+  TrafficLane lane = TrafficLane::kAlongPath;
+  double x_m = 0.0, y_m = 0.0; ///< centre of the footprint (world frame)
+  double yaw_rad = 0.0;        ///< heading of the vehicle's front
+  double length_m = 4.5, width_m = 1.8, height_m = 1.5;
+  float reflectivity = 0.5f;
+};
 
 /// \brief Parameters of the procedural world.
 struct WorldParams
@@ -186,6 +287,7 @@ struct WorldParams
   bool moving_cars = false;   ///< cars driving along the path (not static)
   int num_moving_cars = 8;    ///< when moving_cars
   double lane_offset_m = 3.0; ///< moving cars drive this far left of the path
+  TrafficParams traffic;      ///< the traffic model (default: along the path)
 
   bool isValid(std::string* why = nullptr) const;
 };
@@ -212,11 +314,15 @@ public:
   /// \param[in] T_world_body the trajectory the world is built around
   /// \param[in] body_height_m height of the body origin above the ground
   /// \param[in] seed random seed
-  /// \throws std::invalid_argument on invalid params or an empty trajectory.
+  /// \param[in] timestamps_s time of each pose (the ego's timing, for the realistic
+  /// traffic), or empty for poses 0.1 s apart
+  /// \throws std::invalid_argument on invalid params, an empty trajectory or
+  /// timestamps that do not match the poses (realistic traffic: or do not increase).
   SimulatedWorld(const WorldParams& params,
                  const PoseVector& T_world_body,
                  double body_height_m,
-                 std::uint64_t seed);
+                 std::uint64_t seed,
+                 const std::vector<double>& timestamps_s = {});
   ~SimulatedWorld();
   SimulatedWorld(const SimulatedWorld&) = delete;
   SimulatedWorld& operator=(const SimulatedWorld&) = delete;
@@ -235,6 +341,9 @@ public:
   double pathLength() const;
   /// \brief Number of static primitives.
   std::size_t numPrimitives() const;
+  /// \brief The moving vehicles at time \a time_s (empty without moving cars): the
+  /// ground truth of what castRays sees moving.
+  std::vector<MovingVehicle> movingVehicles(double time_s) const;
 
   /// \brief Cast rays from \a origin along unit directions \a dirs (world frame)
   /// at time \a time_s (moving cars). hits[k].range_m <= 0 means no return.
