@@ -12,7 +12,8 @@
 /// (`t x y z qx qy qz qw`) holds body (LiDAR) poses and its timestamps are kept.
 /// `-raw-sweep` writes raw (motion-distorted) sweeps instead of instantaneous scans;
 /// the spin convention is documented in pcl/slam/lidar_simulator.h. `-imperfections`
-/// adds the sensor imperfections of pcl::rast::SensorImperfectionParams.
+/// adds the sensor imperfections of pcl::rast::SensorImperfectionParams. DIR/scenes.txt
+/// names the scene type (pcl::rast::SceneType) of every written frame.
 /// `-moving-cars -traffic realistic` drives realistic traffic around the ego vehicle
 /// (pcl::rast::TrafficParams); `-stops N` makes a generated path stop and go.
 
@@ -230,6 +231,25 @@ run(int argc, char** argv)
                ms,
                written,
                ms / static_cast<double>(written));
+
+  // The scene each written frame is in (DIR/scenes.txt, one name per line), and the
+  // stretches on the console: per-scene figures need to know where each frame was.
+  std::string scenes, stretches, previous;
+  std::size_t line = 0, since = 0;
+  for (int i = first; i <= last; i += every, ++line) {
+    const Eigen::Vector3d t = T_world_body[static_cast<std::size_t>(i)].translation();
+    const std::string name = pcl::rast::toString(sim.world().sceneAt(t.x(), t.y()));
+    scenes += name + "\n";
+    if (name != previous && !previous.empty())
+      stretches +=
+          previous + " " + std::to_string(since) + "-" + std::to_string(line - 1) + ", ";
+    if (name != previous)
+      since = line;
+    previous = name;
+  }
+  stretches += previous + " " + std::to_string(since) + "-" + std::to_string(line - 1);
+  pcl::rast::writeFileAtomically(output + "/scenes.txt", scenes);
+  std::fprintf(stderr, "Scenes by written frame [%s]\n", stretches.c_str());
   return kExitOk;
 }
 

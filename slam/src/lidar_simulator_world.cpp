@@ -569,15 +569,27 @@ SimulatedWorld::Impl::buildScenes()
   if (!params.mixed_scenes) {
     stretches = {{0.0, params.scene}};
   } else {
+    // Shares along a drive, roughly as a drive meets them: suburb 35 %, urban canyon
+    // 25 %, highway 20 %, open field 10 %, tunnel 10 %. The drive starts in a suburb
+    // or an urban canyon (a scan with structure: no odometry can tell its speed from
+    // a first scan in a tunnel), and a stretch never repeats the previous type.
+    constexpr double kShare[5] = {0.35, 0.25, 0.20, 0.10, 0.10}; // SceneType order
     Rng rng(hashOf(seed, 200));
     int prev = -1;
     for (double s = 0.0; s <= length;) {
+      const int allowed = prev < 0 ? 2 : 5; // the first stretch: suburb or urban
+      double total = 0.0;
+      for (int t = 0; t < allowed; ++t)
+        total += t == prev ? 0.0 : kShare[t];
+      double u = rng.uniform() * total;
       int type = 0;
-      if (prev < 0) {
-        type = std::min(4, static_cast<int>(rng.uniform() * 5.0));
-      } else { // uniform over the 4 types other than prev
-        type = std::min(3, static_cast<int>(rng.uniform() * 4.0));
-        type += type >= prev ? 1 : 0;
+      for (int t = 0; t < allowed; ++t) {
+        if (t == prev)
+          continue;
+        type = t;
+        if (u < kShare[t])
+          break;
+        u -= kShare[t];
       }
       stretches.push_back({s, static_cast<SceneType>(type)});
       prev = type;
@@ -1181,11 +1193,17 @@ SimulatedWorld::Impl::placeSceneObjects(const ForLots& forLots, const Keep& keep
   });
 
   // Tunnel: per stretch two smooth walls 0.8-2 m outside the corridor, 5-7 m tall, and
-  // a ceiling over part of it (70 % of the stretches).
+  // a ceiling over part of it (70 % of the stretches). Like a real tunnel, the walls
+  // carry small fixtures at irregular spacing: lamps high up (about one per 12 m and
+  // side), cabinets and emergency-niche doors at the bottom (one per ~50 m). Only
+  // they fix a position along the road.
   // 10 m segments: fewer boxes per ray-grid cell (every ray in a tunnel is near them).
   const double tunnel_seg = 10.0;
   forSegments(
-      24, SceneType::kTunnel, tunnel_seg, [&](Rng&, const PathSample& ps, std::size_t k) {
+      24,
+      SceneType::kTunnel,
+      tunnel_seg,
+      [&](Rng& rng, const PathSample& ps, std::size_t k) {
         const std::uint32_t st = sample_stretch[k];
         Rng srng(hashOf(seed, 203, st));
         const double offset = corridor + srng.uniform(0.8, 2.0);
@@ -1196,9 +1214,35 @@ SimulatedWorld::Impl::placeSceneObjects(const ForLots& forLots, const Keep& keep
         const bool roofed = srng.uniform() < 0.7;
         const double roof_a = begin + (end - begin) * srng.uniform(0.0, 0.3);
         const double roof_b = begin + (end - begin) * srng.uniform(0.6, 1.0);
-        for (const double side : {-1.0, 1.0})
+        for (const double side : {-1.0, 1.0}) {
           keep(besideRoad(ps, side, offset, 0.5, tunnel_seg + 0.3, -0.5, height, 0.35f),
                -1.5);
+          // A lamp high on the wall in most 10 m segments (tunnel lighting), off its
+          // regular spacing by up to 3 m; a cabinet or an emergency-niche door at the
+          // bottom in about one segment in five.
+          if (rng.uniform() < 0.8)
+            keep(besideRoad(ps,
+                            side,
+                            offset - 0.25,
+                            0.25,
+                            1.2,
+                            height - 1.3,
+                            height - 1.0,
+                            static_cast<float>(rng.uniform(0.6, 0.9)),
+                            rng.uniform(-0.3, 0.3) * tunnel_seg),
+                 -1.5);
+          if (rng.uniform() < 0.2)
+            keep(besideRoad(ps,
+                            side,
+                            offset - 0.4,
+                            0.4,
+                            rng.uniform(0.8, 1.6),
+                            -0.5,
+                            rng.uniform(1.2, 2.2),
+                            static_cast<float>(rng.uniform(0.4, 0.8)),
+                            rng.uniform(-0.4, 0.4) * tunnel_seg),
+                 -1.5);
+        }
         if (roofed && ps.s >= roof_a && ps.s <= roof_b) {
           const double g = smoothGroundAt(ps.x, ps.y);
           prims.push_back(makeBox(ps.x,
