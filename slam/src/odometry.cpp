@@ -112,6 +112,9 @@ constexpr double kMinFallbackPairedRatio = 0.6;
 constexpr double kDistinctPairsFactor = 1.25;
 /// ... but never below this fraction.
 constexpr double kMinDistinctPairedRatio = 0.2;
+/// With a tracked velocity, dense ICP from the prior is kept over a hypothesis that
+/// pairs at most 1 / this times as many points (moving cars pair too).
+constexpr double kPriorPairsShare = 0.9;
 /// ... or when the features back it (MotionHypothesisParams::guided_gate_m). The
 /// raster's descriptors are too alike for global matching (the ratio test drops most
 /// true pairs) but not under a given motion: at the start of KITTI 02 at 2 Hz (7.6 m per
@@ -1024,6 +1027,15 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     }
     const bool well_paired =
         paired_ratio >= kMinFallbackPairedRatio || distinct || feature_backed;
+    // The prior, corrected only along the directions the scan constrains (e.g. the
+    // ground's height, roll and pitch on an open field).
+    const DenseOptions anchored{0.0, &T_world_prior};
+    std::optional<DenseResult> from_prior;
+    auto fromPrior = [&]() -> const DenseResult& {
+      if (!from_prior)
+        from_prior = registerToMap(source, map, T_world_prior, params.dense, anchored);
+      return *from_prior;
+    };
     if (dense.success && dense.degenerate_directions == 0 && well_paired) {
       result.status = TrackingStatus::kDenseFallback;
       result.T_world_lidar = dense.T_world_lidar;
@@ -1033,14 +1045,33 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
       if (result.guided_pairs > 0)
         result.message += "; " + std::to_string(result.guided_pairs) +
                           " features pair under its motion";
+      // With a tracked velocity the prior is rarely far off. A hypothesis that beat it
+      // by a few pairs along a direction the scan hardly constrains (a tunnel's axis,
+      // with weak features on passing cars whose points pair too) is not better than
+      // the prior: where dense ICP from the prior pairs nearly as well, or the scan
+      // cannot tell the two apart, the prior stands.
+      if (velocity_tracked && fromPrior().success &&
+          moved(dense.T_world_lidar, fromPrior().T_world_lidar, 0.02, 0.1)) {
+        const DenseResult& prior_dense = fromPrior();
+        const double prior_ratio = static_cast<double>(prior_dense.num_correspondences) /
+                                   std::max(1, prior_dense.num_source_points);
+        const bool nearly_as_well = prior_ratio >= kMinFallbackPairedRatio &&
+                                    prior_dense.num_correspondences >=
+                                        kPriorPairsShare * dense.num_correspondences;
+        if (nearly_as_well || denseSeparation(prior_dense, dense.T_world_lidar) <
+                                  params.indistinct_residual_m) {
+          result.message += "; dense ICP from the prior pairs " +
+                            std::to_string(prior_dense.num_correspondences) + " vs " +
+                            std::to_string(dense.num_correspondences) +
+                            ": the prior stands";
+          result.T_world_lidar = prior_dense.T_world_lidar;
+          keepDense(prior_dense);
+        }
+      }
     } else {
-      // The prior, corrected only along the directions the scan constrains (e.g. the
-      // ground's height, roll and pitch on an open field).
-      const DenseResult from_prior =
-          registerToMap(source, map, T_world_prior, params.dense);
       result.status = TrackingStatus::kConstantVelocity;
-      if (from_prior.success)
-        result.T_world_lidar = from_prior.T_world_lidar;
+      if (fromPrior().success)
+        result.T_world_lidar = fromPrior().T_world_lidar;
       result.message = why + ": constant-velocity prediction (" + dense.message + ")";
     }
   }

@@ -363,6 +363,8 @@ registerToMap(const Points3f& source,
         }
     }
     result.degenerate_directions = degenerate;
+    result.weakest_ratio = sum_w > 0.0 ? eig.eigenvalues()(0) / sum_w : 0.0;
+    result.weakest_direction = eig.eigenvectors().col(0);
     result.information = sum_w > 0.0 ? Matrix6d(H / sum_w) : Matrix6d::Zero();
     if (!dx.allFinite()) {
       result.message = "dense: non-finite update";
@@ -397,7 +399,8 @@ registerToMap(const Points3f& source,
   result.message = "dense: " + std::to_string(result.iterations) + " iterations, " +
                    std::to_string(result.num_correspondences) + "/" +
                    std::to_string(result.num_source_points) + " paired, rmse " +
-                   std::to_string(result.rmse_m) + " m" +
+                   std::to_string(result.rmse_m) + " m" + ", weakest direction " +
+                   std::to_string(result.weakest_ratio) + " of the weight" +
                    (result.degenerate_directions > 0
                         ? ", " + std::to_string(result.degenerate_directions) +
                               " degenerate direction(s) kept at the guess"
