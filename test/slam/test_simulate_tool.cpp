@@ -215,6 +215,19 @@ TEST_F(SimulateTool, SceneAndWorldSwitches)
   EXPECT_GT(bytes("tunnel").size(), 0u);
   EXPECT_NE(bytes("suburb"), bytes("tunnel"));
   EXPECT_GT(bytes("all").size(), 0u);
+  // scenes.txt names the scene of each written frame.
+  auto scenes = [&](const std::string& name) {
+    std::ifstream in(dir_ / name / "scenes.txt");
+    std::vector<std::string> lines;
+    for (std::string line; std::getline(in, line);)
+      lines.push_back(line);
+    return lines;
+  };
+  EXPECT_EQ(scenes("tunnel"), (std::vector<std::string>{"tunnel", "tunnel"}));
+  EXPECT_EQ(scenes("suburb"), (std::vector<std::string>{"suburb", "suburb"}));
+  const auto mixed = scenes("all");
+  ASSERT_EQ(mixed.size(), 2u);
+  EXPECT_TRUE(mixed[0] == "suburb" || mixed[0] == "urban") << mixed[0]; // starts with structure
 
   EXPECT_EQ(runSimulate(base + out("bad") + " -scene forest", log_), 1);
   std::ifstream err(log_);
