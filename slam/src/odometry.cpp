@@ -875,8 +875,15 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
                 : T_world_prior;
         const DenseResult second =
             registerToMap(source, map, T_second, params.dense, anchored);
+        // Far from a tracked prior, weak features are as likely aliased (guard-rail
+        // posts every 2.7 m passed at 2.7 m a frame) as right: there the prior's fit
+        // wins unless the features' pairs clearly more (kPriorPairsShare).
+        const bool prior_nearly_as_good =
+            !near_prior && velocity_tracked && second.success && dense.success &&
+            second.num_correspondences >= kPriorPairsShare * dense.num_correspondences;
         if (second.success &&
-            (!dense.success || second.num_correspondences > dense.num_correspondences)) {
+            (!dense.success || second.num_correspondences > dense.num_correspondences ||
+             prior_nearly_as_good)) {
           dense = second;
           if (!near_prior) {
             result.status = TrackingStatus::kDenseFallback;
