@@ -170,11 +170,11 @@ azimuthTimes(const pcl::PointCloud<pcl::PointXYZI>& cloud,
       sweep);
 }
 
-pcl::PointCloud<pcl::PointXYZI>::Ptr
-deskewCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud,
-            const std::vector<float>& times_s,
-            const Twist& xi_per_s,
-            int bins)
+void
+deskewCloudInPlace(pcl::PointCloud<pcl::PointXYZI>& cloud,
+                   const std::vector<float>& times_s,
+                   const Twist& xi_per_s,
+                   int bins)
 {
   if (times_s.size() != cloud.size())
     throw std::invalid_argument("deskewCloud: " + std::to_string(times_s.size()) +
@@ -209,7 +209,7 @@ deskewCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud,
   const float lo_f = *std::min_element(lo_lane, lo_lane + kLanes);
   const float hi_f = *std::max_element(hi_lane, hi_lane + kLanes);
   if (!(lo_f <= hi_f) || !xi_per_s.allFinite())
-    return std::make_shared<pcl::PointCloud<pcl::PointXYZI>>(cloud);
+    return;
   const double lo = lo_f, span = static_cast<double>(hi_f) - lo;
   const int n = span > 0.0 ? bins : 1;
   // One transform per bin, at the bin's middle time.
@@ -219,7 +219,6 @@ deskewCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud,
     transforms[static_cast<std::size_t>(b)] =
         expSE3(tau * xi_per_s).matrix().topRows<3>().cast<float>();
   }
-  auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>(cloud);
   const auto lo_t = static_cast<float>(lo);
   const auto to_bin = static_cast<float>(span > 0.0 ? n / span : 0.0);
   for (std::size_t i = 0; i < cloud.size(); ++i) {
@@ -228,9 +227,19 @@ deskewCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud,
       continue;
     const int b = std::min(n - 1, static_cast<int>((t - lo_t) * to_bin));
     const Eigen::Matrix<float, 3, 4>& T = transforms[static_cast<std::size_t>(b)];
-    auto& p = out->points[i];
+    auto& p = cloud.points[i];
     p.getVector3fMap() = T.leftCols<3>() * p.getVector3fMap() + T.col(3);
   }
+}
+
+pcl::PointCloud<pcl::PointXYZI>::Ptr
+deskewCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+            const std::vector<float>& times_s,
+            const Twist& xi_per_s,
+            int bins)
+{
+  auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>(cloud);
+  deskewCloudInPlace(*out, times_s, xi_per_s, bins);
   return out;
 }
 

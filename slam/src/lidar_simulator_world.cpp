@@ -487,6 +487,15 @@ struct SimulatedWorld::Impl
                    double t_max,
                    double& t,
                    double& cos_inc) const;
+  /// A smooth-ground crossing at \a t with gradient (gx, gy) made a hit: refined on
+  /// the rough ground if there is one, kept when within (0, t_max), with its incidence.
+  bool finishGroundHit(const Eigen::Vector3d& o,
+                       const Eigen::Vector3d& d,
+                       double t_max,
+                       double gx,
+                       double gy,
+                       double& t,
+                       double& cos_inc) const;
   /// The rough ground's crossing near the smooth ground's at \a t (refined in place);
   /// (gx, gy): in the smooth ground's gradient there, out the rough ground's.
   void refineOnRoughGround(const Eigen::Vector3d& o,
@@ -1498,20 +1507,31 @@ SimulatedWorld::Impl::groundHit(const Eigen::Vector3d& o,
     const double h = smoothGroundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
     const double f = o.z() + t * d.z() - h;
     const double df = d.z() - gx * d.x() - gy * d.y();
-    if (std::abs(f) < 5e-4) {
-      if (params.rough_ground)
-        refineOnRoughGround(o, d, t, gx, gy);
-      if (t <= 0.0 || t >= t_max)
-        return false;
-      const Eigen::Vector3d n(-gx, -gy, 1.0);
-      cos_inc = std::abs(n.dot(d)) / n.norm();
-      return true;
-    }
+    if (std::abs(f) < 5e-4)
+      return finishGroundHit(o, d, t_max, gx, gy, t, cos_inc);
     if (df >= -1e-9)
       break;
     t -= f / df;
   }
   return march && marchGround(o, d, t_max, t, cos_inc);
+}
+
+bool
+SimulatedWorld::Impl::finishGroundHit(const Eigen::Vector3d& o,
+                                      const Eigen::Vector3d& d,
+                                      double t_max,
+                                      double gx,
+                                      double gy,
+                                      double& t,
+                                      double& cos_inc) const
+{
+  if (params.rough_ground)
+    refineOnRoughGround(o, d, t, gx, gy);
+  if (t <= 0.0 || t >= t_max)
+    return false;
+  const Eigen::Vector3d n(-gx, -gy, 1.0);
+  cos_inc = std::abs(n.dot(d)) / n.norm();
+  return true;
 }
 
 bool
@@ -1550,13 +1570,7 @@ SimulatedWorld::Impl::marchGround(const Eigen::Vector3d& o,
     t = t_lo + (t_hi - t_lo) * f_lo / (f_lo - f_hi);
     double gx, gy;
     smoothGroundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
-    if (params.rough_ground)
-      refineOnRoughGround(o, d, t, gx, gy);
-    if (t <= 0.0 || t >= t_max)
-      return false;
-    const Eigen::Vector3d n(-gx, -gy, 1.0);
-    cos_inc = std::abs(n.dot(d)) / n.norm();
-    return true;
+    return finishGroundHit(o, d, t_max, gx, gy, t, cos_inc);
   }
   return false;
 }

@@ -869,8 +869,9 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
         // where the dense step can settle in a wrong minimum. A second dense fit starts
         // from the features' planar motion with the prior's height, roll and pitch (near
         // the prior, a level mount) or from the prior itself; the better paired one wins.
+        const bool second_from_features = near_prior && !params.ground.level_cloud;
         const Pose3d T_second =
-            near_prior && !params.ground.level_cloud
+            second_from_features
                 ? planarFromFeatures(T_world_last, T_world_features, T_world_prior)
                 : T_world_prior;
         const DenseResult second =
@@ -897,7 +898,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
         // Cross-check: weak features must not drag the dense step along a direction the
         // scan hardly constrains. Dense from the prior as well; where the scan cannot
         // tell the two results apart, the prior's wins.
-        if (dense.success && near_prior && !T_second.isApprox(T_world_prior)) {
+        if (dense.success && second_from_features) {
           const DenseResult from_prior =
               registerToMap(source, map, T_world_prior, params.dense, anchored);
           // 2 cm / 0.1 deg: below the range noise a choice changes nothing.
@@ -1188,10 +1189,10 @@ Odometry::Impl::deskewIndices(const pcl::PointCloud<pcl::PointXYZI>& input,
                               const pcl::Indices& indices,
                               const Twist& xi) const
 {
-  return deskewCloud(pcl::PointCloud<pcl::PointXYZI>(input, indices),
-                     times.of(indices),
-                     xi,
-                     params.deskew.bins);
+  // One copy of the chosen points, compensated in place.
+  auto subset = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>(input, indices);
+  deskewCloudInPlace(*subset, times.of(indices), xi, params.deskew.bins);
+  return subset;
 }
 
 void

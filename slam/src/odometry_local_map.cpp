@@ -364,7 +364,6 @@ registerToMap(const Points3f& source,
     }
     result.degenerate_directions = degenerate;
     result.weakest_ratio = sum_w > 0.0 ? eig.eigenvalues()(0) / sum_w : 0.0;
-    result.weakest_direction = eig.eigenvectors().col(0);
     result.information = sum_w > 0.0 ? Matrix6d(H / sum_w) : Matrix6d::Zero();
     if (!dx.allFinite()) {
       result.message = "dense: non-finite update";

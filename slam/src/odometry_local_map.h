@@ -105,10 +105,9 @@ struct DenseResult
   /// tangent of denseTangent: delta^T information delta is the mean squared residual
   /// a displacement delta adds, i.e. how well the scan tells two poses apart.
   Eigen::Matrix<double, 6, 6> information = Eigen::Matrix<double, 6, 6>::Zero();
-  /// The smallest eigenvalue of the normal equations over the total weight, and its
-  /// eigenvector (the direction the scan constrains least).
+  /// The smallest eigenvalue of the normal equations over the total weight (the
+  /// direction the scan constrains least).
   double weakest_ratio = 0.0;
-  Eigen::Matrix<double, 6, 1> weakest_direction = Eigen::Matrix<double, 6, 1>::Zero();
   std::string message;
 };
 

@@ -83,5 +83,11 @@ deskewCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud,
             const Twist& xi_per_s,
             int bins = 512);
 
+/// \brief deskewCloud on \a cloud itself, without a copy (same rules and errors).
+void deskewCloudInPlace(pcl::PointCloud<pcl::PointXYZI>& cloud,
+                        const std::vector<float>& times_s,
+                        const Twist& xi_per_s,
+                        int bins = 512);
+
 } // namespace rast
 } // namespace pcl
