@@ -7,6 +7,7 @@
 #include <cmath>
 #include <gtest/gtest.h>
 #include <random>
+#include <string>
 
 namespace {
 
@@ -126,6 +127,24 @@ TEST(DenseDegeneracy, SeparationSaysWhatTheScanCannotTellApart)
   yawed.linear() =
       Eigen::AngleAxisd(M_PI / 180.0, Eigen::Vector3d::UnitZ()).toRotationMatrix();
   EXPECT_GT(denseSeparation(result, yawed), 2.0 * indistinct);
+}
+
+} // namespace
+
+namespace {
+
+TEST(DenseDegeneracy, BadThresholdIsRejectedNamingTheValue)
+{
+  pcl::rast::OdometryParams params;
+  std::string why;
+  ASSERT_TRUE(params.isValid(&why)) << why;
+  params.indistinct_residual_m = -0.5;
+  EXPECT_FALSE(params.isValid(&why));
+  EXPECT_NE(why.find("indistinct_residual_m"), std::string::npos) << why;
+  EXPECT_NE(why.find("-0.5"), std::string::npos) << why;
+  params.indistinct_residual_m = std::nan("");
+  EXPECT_FALSE(params.isValid(&why));
+  EXPECT_THROW(pcl::rast::Odometry{params}, std::invalid_argument);
 }
 
 } // namespace
