@@ -49,9 +49,9 @@ data()
     for (std::size_t i = 0; i < reader.size(); ++i) {
       const rast::ScanFrame frame = reader.read(i);
       out.scans.push_back(frame.cloud);
-      rast::SACGroundRemoval ground(params.ground);
+      rast::SACGroundRemoval<pcl::PointXYZI> ground(params.ground);
       ground.setInputCloud(frame.cloud);
-      rast::GroundRemovalResult g;
+      rast::GroundRemovalResult<pcl::PointXYZI> g;
       ground.segment(g);
       out.non_ground.push_back(g.non_ground);
       rast::RangeRasterImage raster(params.raster);
@@ -86,11 +86,11 @@ BM_GroundRemoval(benchmark::State& state)
   if (skipWithoutData(state))
     return;
   const rast::OdometryParams params;
-  rast::SACGroundRemoval ground(params.ground);
+  rast::SACGroundRemoval<pcl::PointXYZI> ground(params.ground);
   std::size_t i = 0;
   for (auto _ : state) {
     ground.setInputCloud(data().scans[i++ % data().scans.size()]);
-    rast::GroundRemovalResult g;
+    rast::GroundRemovalResult<pcl::PointXYZI> g;
     ground.segment(g);
     benchmark::DoNotOptimize(g.ground_found);
   }

@@ -70,7 +70,7 @@ processScan(const std::string& path, const Options& options)
             << cloud->size() << " points]\n";
   FrameFeatures frame;
   // Reused across repeats, as a pipeline reuses them across frames.
-  pcl::rast::SACGroundRemoval ground(options.ground);
+  pcl::rast::SACGroundRemoval<pcl::PointXYZI> ground(options.ground);
   pcl::rast::OrbRasterFeatureEstimator orb;
   orb.setParams(options.orb);
   orb.setRasterParams(options.raster);
@@ -79,7 +79,7 @@ processScan(const std::string& path, const Options& options)
     auto t0 = Clock::now();
     if (!options.no_ground_removal) {
       ground.setInputCloud(cloud);
-      pcl::rast::GroundRemovalResult result;
+      pcl::rast::GroundRemovalResult<pcl::PointXYZI> result;
       ground.segment(result);
       if (run == 0)
         std::cerr << "  " << result.message << "\n";

@@ -63,9 +63,9 @@ levellingRotation(const pcl::PointCloud<pcl::PointXYZI>& map)
   rast::SACGroundRemovalParams params;
   params.max_tilt_deg = 60.0; // a handheld sensor may be pitched far down
   params.min_inliers = 50;
-  rast::GroundRemovalResult result;
+  rast::GroundRemovalResult<pcl::PointXYZI> result;
   try {
-    rast::SACGroundRemoval ground(params);
+    rast::SACGroundRemoval<pcl::PointXYZI> ground(params);
     ground.setInputCloud(near);
     ground.segment(result);
   }

@@ -468,7 +468,7 @@ struct Odometry::Impl
   }
 
   OdometryParams params;
-  SACGroundRemoval ground;
+  SACGroundRemoval<pcl::PointXYZI> ground;
   OrbRasterFeatureEstimator orb;
   VoxelPlaneMap map;
   int map_scans = 0; ///< scans inserted into the map so far
@@ -698,7 +698,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   //    only the plane is kept.
   start = Clock::now();
   ground.setInputCloud(input_ptr);
-  GroundRemovalResult ground_result;
+  GroundRemovalResult<pcl::PointXYZI> ground_result;
   ground.segment(ground_result);
   result.ground_found = ground_result.ground_found;
   result.timings.ground_ms = msSince(start);

@@ -147,9 +147,9 @@ guessSensorPreset(const pcl::PointCloud<pcl::PointXYZI>& scan)
   // Ground tilt: a plane fit allowing up to 60 deg.
   SACGroundRemovalParams ground;
   ground.max_tilt_deg = 60.0;
-  SACGroundRemoval removal(ground);
+  SACGroundRemoval<pcl::PointXYZI> removal(ground);
   removal.setInputCloud(scan.makeShared());
-  GroundRemovalResult result;
+  GroundRemovalResult<pcl::PointXYZI> result;
   removal.segment(result);
   if (result.ground_found)
     guess.ground_tilt_deg =

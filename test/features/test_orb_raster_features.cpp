@@ -342,9 +342,9 @@ RasterFeatureSet
 realFeatures(const std::string& path, double max_tilt_deg = 3.0)
 {
   const auto cloud = pcl::rast::readScan(path);
-  pcl::rast::SACGroundRemoval ground;
+  pcl::rast::SACGroundRemoval<pcl::PointXYZI> ground;
   ground.setInputCloud(cloud);
-  pcl::rast::GroundRemovalResult ground_result;
+  pcl::rast::GroundRemovalResult<pcl::PointXYZI> ground_result;
   const auto start = std::chrono::steady_clock::now();
   ground.segment(ground_result);
   const double ground_ms =

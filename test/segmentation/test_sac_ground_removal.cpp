@@ -1,6 +1,7 @@
 /// \file test_sac_ground_removal.cpp
 /// \brief SACGroundRemoval on synthetic plane + boxes scenes and on a real KITTI scan.
 
+#include <pcl/rast/point_types.h>
 #include <pcl/segmentation/sac_ground_removal.h>
 #include <pcl/slam/sequence_reader.h>
 
@@ -15,10 +16,10 @@
 #include <set>
 #include <stdexcept>
 
-using pcl::rast::GroundRemovalResult;
-using pcl::rast::SACGroundRemoval;
 using pcl::rast::SACGroundRemovalParams;
 using Cloud = pcl::PointCloud<pcl::PointXYZI>;
+using GroundRemovalResult = pcl::rast::GroundRemovalResult<pcl::PointXYZI>;
+using SACGroundRemoval = pcl::rast::SACGroundRemoval<pcl::PointXYZI>;
 
 namespace {
 
@@ -277,4 +278,153 @@ TEST(SACGroundRemoval, RealKittiScan)
   EXPECT_NEAR(result.plane_coefficients[3], 1.73, 0.25); // KITTI: sensor 1.73 m above road
   EXPECT_GT(result.ground_indices.size(), cloud->size() / 5);
   EXPECT_LT(result.ground_indices.size(), cloud->size() * 4 / 5);
+}
+
+// ---- As a pcl::FilterIndices<PointT> -------------------------------------------------
+
+namespace {
+
+/// makePlaneAndBoxes as another point type (x, y, z copied; other fields zero).
+template <typename PointT>
+typename pcl::PointCloud<PointT>::Ptr
+planeAndBoxesAs(std::size_t num_ground, std::size_t num_per_box, unsigned seed)
+{
+  const auto xyzi = makePlaneAndBoxes(num_ground, num_per_box, seed);
+  auto cloud = std::make_shared<pcl::PointCloud<PointT>>();
+  for (const auto& q : *xyzi) {
+    PointT p{};
+    p.x = q.x;
+    p.y = q.y;
+    p.z = q.z;
+    cloud->push_back(p);
+  }
+  return cloud;
+}
+
+template <typename PointT>
+class GroundFilter : public ::testing::Test
+{};
+using FilterPointTypes = ::testing::Types<pcl::PointXYZ,
+                                          pcl::PointXYZI,
+                                          pcl::PointXYZINormal,
+                                          pcl::rast::PointXYZIRT,
+                                          pcl::rast::PointOuster>;
+TYPED_TEST_SUITE(GroundFilter, FilterPointTypes);
+
+} // namespace
+
+TYPED_TEST(GroundFilter, KeepsObjectsRemovesGroundThroughBasePointer)
+{
+  using PointT = TypeParam;
+  const std::size_t num_ground = 20000, num_boxes = 4 * 2000;
+  const auto cloud = planeAndBoxesAs<PointT>(num_ground, 2000, 1);
+  const typename pcl::FilterIndices<PointT>::Ptr filter(
+      new pcl::rast::SACGroundRemoval<PointT>(true));
+  filter->setInputCloud(cloud);
+
+  pcl::PointCloud<PointT> objects;
+  filter->filter(objects);
+  ASSERT_EQ(objects.size(), num_boxes);
+  for (const auto& p : objects)
+    EXPECT_GT(p.z, -kSensorHeight + 0.25f); // no road point among them
+  const auto& removed = *filter->getRemovedIndices();
+  ASSERT_EQ(removed.size(), num_ground);
+  for (std::size_t k = 0; k < num_ground; ++k)
+    EXPECT_EQ(removed[k], static_cast<pcl::index_t>(k));
+
+  const auto* ground = dynamic_cast<pcl::rast::SACGroundRemoval<PointT>*>(filter.get());
+  ASSERT_NE(ground, nullptr);
+  EXPECT_TRUE(ground->groundFound()) << ground->getMessage();
+  EXPECT_NEAR(ground->getGroundPlane()[3], kSensorHeight, 0.01f);
+  EXPECT_GT(ground->getGroundPlane()[2], 0.9999f);
+
+  // Negative: the ground instead, by index.
+  filter->setNegative(true);
+  pcl::Indices road;
+  filter->filter(road);
+  ASSERT_EQ(road.size(), num_ground);
+  EXPECT_EQ(road.back(), static_cast<pcl::index_t>(num_ground - 1));
+  EXPECT_EQ(filter->getRemovedIndices()->size(), num_boxes);
+}
+
+TYPED_TEST(GroundFilter, KeepsOrganizedAndHonoursIndices)
+{
+  using PointT = TypeParam;
+  const std::size_t num_ground = 20000;
+  auto cloud = planeAndBoxesAs<PointT>(num_ground, 2000, 3);
+  // An organized layout: the points as 4 rows.
+  cloud->height = 4;
+  cloud->width = static_cast<std::uint32_t>(cloud->size() / 4);
+  ASSERT_EQ(cloud->width * cloud->height, cloud->size());
+
+  pcl::rast::SACGroundRemoval<PointT> filter(true);
+  filter.setInputCloud(cloud);
+  filter.setKeepOrganized(true);
+  pcl::PointCloud<PointT> out;
+  filter.filter(out);
+  ASSERT_EQ(out.width, cloud->width);
+  ASSERT_EQ(out.height, cloud->height);
+  EXPECT_FALSE(out.is_dense);
+  std::size_t nan = 0;
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    if (!std::isfinite(out[i].x))
+      ++nan;
+    else
+      EXPECT_EQ(out[i].x, (*cloud)[i].x); // kept points stay where they were
+  }
+  EXPECT_EQ(nan, num_ground);
+
+  // Only the first half of the road and every box point: the fit and the output
+  // stay inside the subset.
+  auto subset = std::make_shared<pcl::Indices>();
+  for (std::size_t i = 0; i < cloud->size(); ++i)
+    if (i >= num_ground || i % 2 == 0)
+      subset->push_back(static_cast<pcl::index_t>(i));
+  pcl::rast::SACGroundRemoval<PointT> part(true);
+  part.setInputCloud(cloud);
+  part.setIndices(subset);
+  pcl::Indices kept;
+  part.filter(kept);
+  EXPECT_EQ(kept.size(), cloud->size() - num_ground);
+  EXPECT_EQ(part.getRemovedIndices()->size(), num_ground / 2);
+  for (const auto i : *part.getRemovedIndices())
+    EXPECT_EQ(i % 2, 0);
+}
+
+TEST(GroundFilter, NoGroundKeepsEverythingAndSaysSo)
+{
+  // Boxes only: no plane has the support.
+  auto cloud = planeAndBoxesAs<pcl::PointXYZ>(0, 3000, 5);
+  pcl::rast::SACGroundRemoval<pcl::PointXYZ> filter(true);
+  filter.setInputCloud(cloud);
+  pcl::PointCloud<pcl::PointXYZ> out;
+  filter.filter(out);
+  EXPECT_FALSE(filter.groundFound());
+  EXPECT_NE(filter.getMessage().find("no ground"), std::string::npos) << filter.getMessage();
+  EXPECT_EQ(out.size(), cloud->size());
+  EXPECT_TRUE(filter.getRemovedIndices()->empty());
+  EXPECT_TRUE(filter.getLevellingTransform().matrix().isIdentity());
+  filter.setNegative(true);
+  pcl::Indices ground;
+  filter.filter(ground);
+  EXPECT_TRUE(ground.empty());
+}
+
+TEST(GroundFilter, LevellingTransformOfATiltedCloud)
+{
+  // A cloud tilted 10 deg about x: the transform brings the plane's normal to +z.
+  const Eigen::Matrix3f R = Eigen::AngleAxisf(10.0f * float(M_PI) / 180.0f,
+                                              Eigen::Vector3f::UnitX())
+                                .toRotationMatrix();
+  const auto tilted = transformed(*makePlaneAndBoxes(20000, 2000, 5), R);
+  pcl::rast::SACGroundRemoval<pcl::PointXYZI> filter;
+  filter.setInputCloud(tilted);
+  Cloud out;
+  filter.filter(out);
+  ASSERT_TRUE(filter.groundFound()) << filter.getMessage();
+  const Eigen::Vector3f normal =
+      filter.getLevellingTransform().linear() * filter.getGroundPlane().head<3>();
+  EXPECT_GT(normal.z(), 0.99999f);
+  // filter() never moves points.
+  EXPECT_EQ(out[0].x, (*tilted)[20000].x);
 }

@@ -68,9 +68,9 @@ makeKeyFrame(KeyFrameId id, const Cloud::ConstPtr& scan)
 {
   auto kf = std::make_shared<KeyFrame>();
   kf->id = id;
-  pcl::rast::SACGroundRemoval ground;
+  pcl::rast::SACGroundRemoval<pcl::PointXYZI> ground;
   ground.setInputCloud(scan);
-  pcl::rast::GroundRemovalResult g;
+  pcl::rast::GroundRemovalResult<pcl::PointXYZI> g;
   ground.segment(g);
   pcl::rast::OrbRasterFeatureEstimator orb;
   orb.setInputCloud(g.non_ground ? Cloud::ConstPtr(g.non_ground) : scan);

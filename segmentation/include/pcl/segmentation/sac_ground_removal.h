@@ -5,6 +5,7 @@
 /// road do not end up in the rasterized image.
 /// \ingroup segmentation
 
+#include <pcl/filters/filter_indices.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 #include <pcl/types.h>
@@ -68,6 +69,7 @@ struct SACGroundRemovalParams
 
 /// \brief Output of SACGroundRemoval::segment.
 /// \ingroup segmentation
+template <typename PointT>
 struct GroundRemovalResult
 {
   /// The input was processed (false only for an empty or all-non-finite input).
@@ -85,7 +87,7 @@ struct GroundRemovalResult
   pcl::Indices non_ground_indices;
   /// The non-ground points: in the LiDAR frame, or in the levelled frame
   /// (p_level = T_level_lidar * p_lidar) when level_cloud was set and ground was found.
-  pcl::PointCloud<pcl::PointXYZI>::Ptr non_ground;
+  typename pcl::PointCloud<PointT>::Ptr non_ground;
   /// Rotation levelling the cloud (ground normal -> +z); identity when not levelled.
   Eigen::Isometry3f T_level_lidar = Eigen::Isometry3f::Identity();
   /// Number of input points that were skipped because they are not finite.
@@ -95,49 +97,64 @@ struct GroundRemovalResult
 };
 
 /// \brief Fit a plane to points by least squares (smallest eigenvector of the
-/// covariance). Returns false when fewer than 3 indices are given.
+/// covariance, accumulated in double). Returns false when fewer than 3 indices are given.
 /// \param[in] cloud the points
 /// \param[in] indices the points to fit
 /// \param[out] plane (a, b, c, d) with unit normal; its sign is arbitrary
 /// \ingroup segmentation
+template <typename PointT>
 bool
-fitPlaneLeastSquares(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+fitPlaneLeastSquares(const pcl::PointCloud<PointT>& cloud,
                      const pcl::Indices& indices,
                      Eigen::Vector4f& plane);
 
-/// \brief RANSAC ground removal, constrained to near-horizontal planes.
+/// \brief RANSAC ground removal, constrained to near-horizontal planes below the
+/// sensor, as a PCL filter: it keeps the points that are not ground.
 ///
-/// Usage:
+/// As a pcl::FilterIndices<PointT> it stands wherever a PCL filter does:
 /// \code
-/// pcl::rast::SACGroundRemoval ground;
-/// ground.setInputCloud(cloud);
-/// pcl::rast::GroundRemovalResult result;
-/// ground.segment(result);
-/// if (result.ground_found) ... result.non_ground ...
+/// pcl::FilterIndices<pcl::PointXYZ>::Ptr filter(
+///     new pcl::rast::SACGroundRemoval<pcl::PointXYZ>(true)); // keep removed indices
+/// filter->setInputCloud(cloud);
+/// filter->filter(*objects);               // the non-ground points
+/// filter->setNegative(true);
+/// filter->filter(ground_indices);         // the ground points instead
+/// const auto& removed = *filter->getRemovedIndices();
 /// \endcode
+/// With setKeepOrganized(true) the output keeps the input's size and layout, the
+/// removed points set to NaN (setUserFilterValue). setIndices() restricts both the
+/// fit and the output to a subset. After filter(), groundFound(), getGroundPlane(),
+/// getLevellingTransform() and getMessage() describe the plane; when no ground is
+/// found, filter() keeps every finite point (negative: none) and groundFound() says so.
+///
+/// segment() gives every output of one fit at once (ground and non-ground indices,
+/// the non-ground cloud, levelled on request), as the odometry uses it.
+///
 /// The plane is hypothesised on a seeded subsample of points below the sensor
-/// (\a max_sample_points), scored there, then every point is classified by its
-/// distance and the plane is refined by least squares on the inliers.
+/// (\a max_sample_points) by PCL's SampleConsensusModelPerpendicularPlane, scored
+/// there, then every point is classified by its distance and the plane is refined by
+/// least squares (in double) on the inliers over the whole cloud.
+/// Instantiated for PCL_RAST_XYZ_POINT_TYPES (pcl/rast/point_types.h); other point
+/// types with x, y, z: include pcl/segmentation/impl/sac_ground_removal.hpp.
 /// \ingroup segmentation
-class SACGroundRemoval
+template <typename PointT>
+class SACGroundRemoval : public pcl::FilterIndices<PointT>
 {
 public:
-  using Ptr = std::shared_ptr<SACGroundRemoval>;
-  using ConstPtr = std::shared_ptr<const SACGroundRemoval>;
-  using PointT = pcl::PointXYZI;
+  using Ptr = std::shared_ptr<SACGroundRemoval<PointT>>;
+  using ConstPtr = std::shared_ptr<const SACGroundRemoval<PointT>>;
   using PointCloud = pcl::PointCloud<PointT>;
+  using PointCloudConstPtr = typename PointCloud::ConstPtr;
 
-  SACGroundRemoval() = default;
-  explicit SACGroundRemoval(const SACGroundRemovalParams& params) { setParams(params); }
+  /// \param[in] extract_removed_indices keep the removed indices (getRemovedIndices)
+  explicit SACGroundRemoval(bool extract_removed_indices = false);
+  /// \throws std::invalid_argument when !params.isValid().
+  explicit SACGroundRemoval(const SACGroundRemovalParams& params,
+                            bool extract_removed_indices = false);
 
   /// \brief Set the cloud to segment. \throws std::invalid_argument when null.
   void
-  setInputCloud(const PointCloud::ConstPtr& cloud);
-  PointCloud::ConstPtr
-  getInputCloud() const
-  {
-    return input_;
-  }
+  setInputCloud(const PointCloudConstPtr& cloud) override;
 
   /// \brief \throws std::invalid_argument when !params.isValid().
   void
@@ -148,16 +165,63 @@ public:
     return params_;
   }
 
-  /// \brief Find and remove the ground.
+  /// \brief Find the ground and give every output of the fit at once.
   /// \param[out] result plane, inliers, non-ground cloud, flags and message
   /// \throws std::invalid_argument when no input cloud was set.
   void
-  segment(GroundRemovalResult& result) const;
+  segment(GroundRemovalResult<PointT>& result) const;
+
+  /// \brief Whether the last filter() found a ground plane.
+  bool
+  groundFound() const
+  {
+    return ground_found_;
+  }
+  /// \brief The last filter()'s ground plane (see GroundRemovalResult); zero when none.
+  const Eigen::Vector4f&
+  getGroundPlane() const
+  {
+    return plane_;
+  }
+  /// \brief The rotation that levels the last filter()'s ground (normal -> +z), for a
+  /// top-down raster of a tilted sensor; identity when no ground was found. filter()
+  /// itself never moves points.
+  Eigen::Isometry3f
+  getLevellingTransform() const;
+  /// \brief What the last filter() found, or why it found no ground.
+  const std::string&
+  getMessage() const
+  {
+    return message_;
+  }
+
+protected:
+  using pcl::FilterIndices<PointT>::input_;
+  using pcl::FilterIndices<PointT>::indices_;
+  using pcl::FilterIndices<PointT>::negative_;
+  using pcl::FilterIndices<PointT>::removed_indices_;
+  using pcl::FilterIndices<PointT>::extract_removed_indices_;
+  using pcl::FilterIndices<PointT>::filter_name_;
+  using pcl::FilterIndices<PointT>::applyFilter;
+
+  void
+  applyFilter(pcl::Indices& indices) override;
 
 private:
-  PointCloud::ConstPtr input_;
+  /// One fit on \a candidates (finite or not) of the input: ground and non-ground
+  /// indices, plane and message in \a result (its cloud untouched).
+  void
+  fit(const pcl::Indices* candidates, GroundRemovalResult<PointT>& result) const;
+
   SACGroundRemovalParams params_;
+  bool ground_found_ = false;
+  Eigen::Vector4f plane_ = Eigen::Vector4f::Zero();
+  std::string message_;
 };
 
 } // namespace rast
 } // namespace pcl
+
+#ifdef PCL_NO_PRECOMPILE
+#include <pcl/segmentation/impl/sac_ground_removal.hpp>
+#endif
