@@ -131,7 +131,7 @@ fitPlaneLeastSquares(const pcl::PointCloud<PointT>& cloud,
 /// the non-ground cloud, levelled on request), as the odometry uses it.
 ///
 /// The plane is hypothesised on a seeded subsample of points below the sensor
-/// (\a max_sample_points) by PCL's SampleConsensusModelPerpendicularPlane, scored
+/// (\a max_sample_points) by PCL's SampleConsensusModelPlane, scored
 /// there, then every point is classified by its distance and the plane is refined by
 /// least squares (in double) on the inliers over the whole cloud.
 /// Instantiated for PCL_RAST_XYZ_POINT_TYPES (pcl/rast/point_types.h); other point
