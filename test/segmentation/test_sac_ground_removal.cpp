@@ -389,6 +389,18 @@ TYPED_TEST(GroundFilter, KeepsOrganizedAndHonoursIndices)
   EXPECT_EQ(part.getRemovedIndices()->size(), num_ground / 2);
   for (const auto i : *part.getRemovedIndices())
     EXPECT_EQ(i % 2, 0);
+
+  // An index outside the cloud is an error naming it, not a read out of bounds.
+  subset->push_back(static_cast<pcl::index_t>(cloud->size()));
+  part.setIndices(subset);
+  try {
+    part.filter(kept);
+    ADD_FAILURE() << "an index outside the cloud was accepted";
+  }
+  catch (const std::out_of_range& e) {
+    EXPECT_NE(std::string(e.what()).find(std::to_string(cloud->size())), std::string::npos)
+        << e.what();
+  }
 }
 
 TEST(GroundFilter, NoGroundKeepsEverythingAndSaysSo)

@@ -123,7 +123,9 @@ fitPlaneLeastSquares(const pcl::PointCloud<PointT>& cloud,
 /// \endcode
 /// With setKeepOrganized(true) the output keeps the input's size and layout, the
 /// removed points set to NaN (setUserFilterValue). setIndices() restricts both the
-/// fit and the output to a subset. After filter(), groundFound(), getGroundPlane(),
+/// fit and the output to a subset (an index outside the cloud: std::out_of_range from
+/// filter() and segment(), naming it).
+/// After filter(), groundFound(), getGroundPlane(),
 /// getLevellingTransform() and getMessage() describe the plane; when no ground is
 /// found, filter() keeps every finite point (negative: none) and groundFound() says so.
 ///

@@ -188,6 +188,12 @@ SACGroundRemoval<PointT>::fit(const pcl::Indices* candidates,
   auto at = [&](std::size_t k) {
     return candidates ? (*candidates)[k] : static_cast<pcl::index_t>(k);
   };
+  if (candidates)
+    for (const auto i : *candidates)
+      if (i < 0 || static_cast<std::size_t>(i) >= cloud.size())
+        throw std::out_of_range("SACGroundRemoval: index " + std::to_string(i) +
+                                " is outside the input cloud of " +
+                                std::to_string(cloud.size()) + " points");
   const Eigen::Vector3f up = params_.up_axis.normalized();
   const float threshold = static_cast<float>(params_.distance_threshold_m);
   const float cos_max_tilt =
