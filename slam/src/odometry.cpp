@@ -10,6 +10,7 @@
 #include <cmath>
 #include <numeric>
 #include <optional>
+#include <pcl/common/io.h>
 #include <pcl/registration/hamming_correspondence_estimation.h>
 #include <pcl/registration/rigid_ransac.h>
 #include <pcl/slam/odometry.h>
@@ -142,10 +143,8 @@ public:
   /// times[k] of point indices[k].
   std::vector<float> of(const pcl::Indices& indices) const
   {
-    if (!given_)
-      return all_.empty() ? azimuthTimes(cloud_, indices, period_s_, sweep_)
-                          : gather(all_, indices);
-    return gather(*given_, indices);
+    return given_ ? gather(*given_, indices)
+                  : azimuthTimes(cloud_, indices, period_s_, sweep_);
   }
   /// One per point of the cloud.
   const std::vector<float>& all()
@@ -511,8 +510,6 @@ struct Odometry::Impl
   OdometryFrameResult track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
                             const std::vector<float>& point_times,
                             OdometryFrameResult result);
-  /// The times to compensate \a input with (params.deskew): the given ones, times from
-  /// the azimuth, or none (null). \a storage holds azimuth times.
   /// Step 5b of track: where the estimated motion differs from the previous frame's (a
   /// stop, a start, a turn), the dense step's source points are compensated with it and
   /// refined once more from the estimate. When that is kept, \a xi_sweep becomes the
@@ -534,6 +531,8 @@ struct Odometry::Impl
   /// before it). Once the next frame's motion is known, the local map is rebuilt from
   /// that scan compensated with it (the key-frame's own stored cloud stays as it was).
   void rebuildMapFromFirstScan(OdometryFrameResult& result);
+  /// The times to compensate \a input with (params.deskew): the given ones (processFrame
+  /// passes only usable ones), times from the azimuth, or none.
   std::optional<PointTimes> sweepTimes(const pcl::PointCloud<pcl::PointXYZI>& input,
                                        const std::vector<float>& given,
                                        double frame_interval_s,
@@ -698,35 +697,39 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   //    only the plane is kept.
   start = Clock::now();
   ground.setInputCloud(input_ptr);
-  GroundRemovalResult<pcl::PointXYZI> ground_result;
-  ground.segment(ground_result);
-  result.ground_found = ground_result.ground_found;
+  pcl::Indices non_ground_indices;
+  ground.filter(non_ground_indices);
+  result.ground_found = ground.groundFound();
   result.timings.ground_ms = msSince(start);
-  if (xi_sweep && ground_result.non_ground &&
-      ground_result.non_ground->size() == ground_result.non_ground_indices.size()) {
-    start = Clock::now();
-    auto non_ground =
-        deskewIndices(input, *times, ground_result.non_ground_indices, *xi_sweep);
-    if (ground_result.ground_found &&
-        !ground_result.T_level_lidar.isApprox(Eigen::Isometry3f::Identity())) {
-      for (auto& p : non_ground->points)
-        p.getVector3fMap() = ground_result.T_level_lidar * p.getVector3fMap();
-    }
-    ground_result.non_ground = non_ground;
+  // The levelled frame, where the sensor is tilted (params.ground.level_cloud).
+  const Eigen::Isometry3f T_level_lidar = ground.getLevellingTransform();
+  const bool levelled = params.ground.level_cloud && result.ground_found &&
+                        !T_level_lidar.isApprox(Eigen::Isometry3f::Identity());
+  // The non-ground points, compensated (one copy of them either way), then levelled.
+  start = Clock::now();
+  pcl::PointCloud<pcl::PointXYZI>::Ptr non_ground;
+  if (xi_sweep) {
+    non_ground = deskewIndices(input, *times, non_ground_indices, *xi_sweep);
     result.timings.deskew_ms += msSince(start);
+  } else {
+    non_ground = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    pcl::copyPointCloud(input, non_ground_indices, *non_ground);
+    result.timings.ground_ms += msSince(start);
   }
+  if (levelled)
+    for (auto& p : non_ground->points)
+      p.getVector3fMap() = T_level_lidar.linear() * p.getVector3fMap();
 
   // 2-3. Raster of the non-ground points and ORB features (sec. 5-6).
   auto features = std::make_shared<RasterFeatureSet>();
-  if (ground_result.non_ground && !ground_result.non_ground->empty()) {
-    orb.setInputCloud(ground_result.non_ground);
+  if (!non_ground->empty()) {
+    orb.setInputCloud(non_ground);
     const OrbRasterFeatureResult orb_result = orb.compute(*features);
     result.timings.raster_ms = orb_result.raster_ms;
     result.timings.orb_ms = orb_result.detect_ms + orb_result.describe_ms;
     // Features of a levelled raster go back to the LiDAR frame.
-    if (ground_result.ground_found &&
-        !ground_result.T_level_lidar.isApprox(Eigen::Isometry3f::Identity())) {
-      const Eigen::Isometry3f T_lidar_level = ground_result.T_level_lidar.inverse();
+    if (levelled) {
+      const Eigen::Isometry3f T_lidar_level = T_level_lidar.inverse();
       for (auto& p : features->points)
         p.getVector3fMap() = T_lidar_level * p.getVector3fMap();
     }
@@ -844,7 +847,6 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
       source = odometry_detail::toPoints(input, source_indices);
     }
   }
-  auto keepDense = [&result](const DenseResult& dense) { keepDenseStats(dense, result); };
   if (features_ok) {
     const int inliers = static_cast<int>(ransac.inlier_indices.size());
     const Pose3d prior_diff = T_world_prior.inverse() * T_world_features;
@@ -914,7 +916,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
           }
         }
       }
-      keepDense(dense);
+      keepDenseStats(dense, result);
       if (dense.success) {
         result.T_world_lidar = dense.T_world_lidar;
         result.refined = true;
@@ -1011,7 +1013,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
         }
       }
     }
-    keepDense(dense);
+    keepDenseStats(dense, result);
     // Dense ICP alone from a wrong start can settle on the ground plane with the wrong
     // yaw; accept it only when most of the scan pairs with the map, or when fewer do
     // but no other hypothesis comes close (a distinct optimum).
@@ -1073,7 +1075,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
                             std::to_string(dense.num_correspondences) +
                             ": the prior stands";
           result.T_world_lidar = prior_dense.T_world_lidar;
-          keepDense(prior_dense);
+          keepDenseStats(prior_dense, result);
         }
       }
     } else {
@@ -1206,9 +1208,11 @@ Odometry::Impl::secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
 {
   const auto start = Clock::now();
   const Pose3d T_motion = T_world_last.inverse() * result.T_world_lidar;
-  const Pose3d change = T_motion_prior.inverse() * T_motion;
-  if (change.translation().norm() > params.deskew.second_pass_translation_m ||
-      angleDeg(change) > params.deskew.second_pass_rotation_deg) {
+  if (moved(T_motion_prior,
+            T_motion,
+            params.deskew.second_pass_translation_m,
+            params.deskew.second_pass_rotation_deg)) {
+    const Pose3d change = T_motion_prior.inverse() * T_motion;
     const Twist xi = logSE3(T_motion) / dt;
     // The points moved by about the change of motion: the annealing starts at twice
     // that, not at the first pass's metre-scale kernel.
@@ -1259,8 +1263,8 @@ Odometry::Impl::sweepTimes(const pcl::PointCloud<pcl::PointXYZI>& input,
 {
   if (params.deskew.mode == DeskewMode::kOff)
     return std::nullopt;
-  // Unusable given times are ignored here and reported by processFrame.
-  if (usableTimes(given, input.size())) {
+  // processFrame passes usable times or none (and reports the unusable ones).
+  if (!given.empty()) {
     source = "field";
     return PointTimes(input, given);
   }
@@ -1294,8 +1298,11 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
   if (!cloud)
     return impl_->skip(timestamp_s, frame_index, "null cloud");
   try {
-    result = impl_->track(cloud, point_times_s, result);
-    if (!point_times_s.empty() && !usableTimes(point_times_s, cloud->size()))
+    static const std::vector<float> kNoTimes;
+    const bool times_usable =
+        point_times_s.empty() || usableTimes(point_times_s, cloud->size());
+    result = impl_->track(cloud, times_usable ? point_times_s : kNoTimes, result);
+    if (!times_usable)
       result.message += "; " + std::to_string(point_times_s.size()) +
                         " point times for " + std::to_string(cloud->size()) +
                         " points, or not finite or beyond +-1 s: ignored";
