@@ -502,6 +502,7 @@ struct Odometry::Impl
   bool velocity_tracked = false;
 
   Pose3d predict(double timestamp_s) const;
+  /// Seconds since the last frame (timestamps scaled by deskew.seconds_per_timestamp).
   double frameInterval(double timestamp_s) const;
   void checkIndex(std::size_t frame_index);
   void commitPose(const OdometryFrameResult& result);
@@ -563,8 +564,8 @@ Odometry::Impl::predict(double timestamp_s) const
 double
 Odometry::Impl::frameInterval(double timestamp_s) const
 {
-  const double dt = timestamp_s - t_last;
-  // Without usable timestamps assume 10 Hz; cap like predict() does.
+  const double dt = (timestamp_s - t_last) * params.deskew.seconds_per_timestamp;
+  // Without usable timestamps assume 10 Hz; cap at 5 s.
   return std::isfinite(dt) && dt > 1e-6 ? std::min(dt, 5.0) : 0.1;
 }
 
@@ -682,8 +683,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   //     dense step's source points right away, the whole scan only when a key-frame or
   //     the local map keeps it (keptCloud below).
   auto start = Clock::now();
-  const double dt =
-      frameInterval(result.timestamp_s) * params.deskew.seconds_per_timestamp;
+  const double dt = frameInterval(result.timestamp_s);
   std::optional<PointTimes> times =
       sweepTimes(input, point_times, dt, result.deskew_times);
   const Pose3d T_motion_prior = T_world_last.inverse() * T_world_prior;

@@ -28,13 +28,13 @@ struct Drive
 };
 
 /// 150 scans of an HDL-64 at 10 m/s around the generated loop (its corners turn at
-/// up to ~0.5 rad/s), raw or instantaneous.
+/// up to ~0.5 rad/s), raw or instantaneous; or \a num_frames along another path.
 Drive
-simulate(bool raw_sweep)
+simulate(bool raw_sweep, PathType type = PathType::kLoop, int num_frames = 150)
 {
   PathParams path;
-  path.type = PathType::kLoop;
-  path.num_frames = 150;
+  path.type = type;
+  path.num_frames = num_frames;
   LidarSimulatorParams params;
   params.seed = 17;
   params.num_threads = 2;
@@ -132,3 +132,41 @@ TEST(OdometryDeskew, CompensatingInstantaneousScansCostsAccuracy)
 }
 
 } // namespace
+
+// Timestamps that are frame numbers (a folder without times.txt) scaled by
+// DeskewParams::seconds_per_timestamp must track exactly like timestamps in seconds:
+// every use of the frame interval (the sweep's motion, the cold start's search along
+// the direction of travel) is in seconds. The features are switched off
+// (min_feature_inliers out of reach), so every frame goes through the dense
+// hypothesis search, and the first tracked frame through the cold start's.
+TEST(OdometryDeskew, FrameNumberTimestampsTrackLikeSeconds)
+{
+  const auto clouds = simulate(false, PathType::kStraight, 6).clouds;
+  auto run = [&](double stamp_per_frame, double seconds_per_timestamp) {
+    OdometryParams params;
+    params.min_feature_inliers = 100000;
+    params.strong_feature_inliers = 100000;
+    params.deskew.mode = DeskewMode::kOn;
+    params.deskew.seconds_per_timestamp = seconds_per_timestamp;
+    Odometry odometry(params);
+    std::vector<OdometryFrameResult> out;
+    for (std::size_t i = 0; i < clouds.size(); ++i)
+      out.push_back(odometry.processFrame(clouds[i], stamp_per_frame * i, i));
+    return out;
+  };
+  const auto seconds = run(0.1, 1.0);
+  const auto numbers = run(1.0, 0.1);
+  ASSERT_EQ(seconds.size(), numbers.size());
+  for (std::size_t i = 1; i < seconds.size(); ++i) {
+    SCOPED_TRACE("frame " + std::to_string(i));
+    EXPECT_EQ(seconds[i].message, numbers[i].message);
+    EXPECT_LT(
+        (seconds[i].T_world_lidar.translation() - numbers[i].T_world_lidar.translation())
+            .norm(),
+        1e-6);
+  }
+  // The cold start searched, and found the drive (about 1 m per frame).
+  EXPECT_NE(seconds[1].message.find("motion hypotheses"), std::string::npos)
+      << seconds[1].message;
+  EXPECT_NEAR(seconds.back().T_world_lidar.translation().x(), 5.0, 0.5);
+}

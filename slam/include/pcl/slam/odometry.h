@@ -113,8 +113,9 @@ struct DeskewParams
   /// Duration of a sweep for azimuth times [s]; <= 0: the time between frames (wrong
   /// when frames are skipped: the tools set it from times.txt or -deskew-period).
   double sweep_period_s = 0.0;
-  /// Seconds per unit of the frames' timestamps, for the motion's rate: 1 for
-  /// timestamps in seconds; for file indices of a 10 Hz sensor, 0.1.
+  /// Seconds per unit of the frames' timestamps, for every rate the odometry uses
+  /// (the sweep's motion, the cold start's search range): 1 for timestamps in seconds;
+  /// for file indices of a 10 Hz sensor, 0.1.
   double seconds_per_timestamp = 1.0;
   /// First pass: the motion of the previous frame. When the estimate's motion differs
   /// from it by more than this over one frame (translation [m] or rotation [deg]), the
