@@ -45,6 +45,12 @@ deskewChoices()
   return {"auto", "on", "off"};
 }
 
+namespace {
+
+/// \brief The odometry's motion compensation for -deskew \a choice. "auto": scans are
+/// compensated with their own time field where they have one and used as they are
+/// otherwise (KITTI's `.bin` scans are compensated already). "on": the time field, else
+/// times from the azimuth. "off": never. \a reason says why (log, summary).
 pcl::rast::DeskewMode
 resolveDeskewMode(const std::string& choice,
                   const pcl::rast::SequenceReader& reader,
@@ -70,6 +76,11 @@ resolveDeskewMode(const std::string& choice,
   return pcl::rast::DeskewMode::kAuto;
 }
 
+/// \brief The time base of motion compensation: the sweep period is \a period_s when
+/// given (> 0), else the median interval between consecutive scan files from
+/// times.txt (the selected frames' interval divided by \a stride), else 0.1 s (10 Hz).
+/// Without times.txt the timestamps are file indices: one index is one sweep period.
+/// \a note says which (log, summary).
 void
 configureDeskewTiming(const pcl::rast::SequenceReader& reader,
                       std::size_t stride,
@@ -99,6 +110,8 @@ configureDeskewTiming(const pcl::rast::SequenceReader& reader,
   params.sweep_period_s = period;
   params.seconds_per_timestamp = seconds ? 1.0 : period;
 }
+
+} // namespace
 
 void
 addDeskewFlags(ArgParser& parser, DeskewFlags& flags)

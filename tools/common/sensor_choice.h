@@ -28,25 +28,6 @@ pcl::rast::SensorPreset resolveSensorPreset(const std::string& choice,
 /// \brief Choices of -deskew: "auto", "on", "off".
 std::vector<std::string> deskewChoices();
 
-/// \brief The odometry's motion compensation for -deskew \a choice. "auto": scans are
-/// compensated with their own time field where they have one and used as they are
-/// otherwise (KITTI's `.bin` scans are compensated already). "on": the time field, else
-/// times from the azimuth. "off": never. \a reason says why (log, summary).
-pcl::rast::DeskewMode resolveDeskewMode(const std::string& choice,
-                                        const pcl::rast::SequenceReader& reader,
-                                        std::string& reason);
-
-/// \brief The time base of motion compensation: the sweep period is \a period_s when
-/// given (> 0), else the median interval between consecutive scan files from
-/// times.txt (the selected frames' interval divided by \a stride), else 0.1 s (10 Hz).
-/// Without times.txt the timestamps are file indices: one index is one sweep period.
-/// \a note says which (log, summary).
-void configureDeskewTiming(const pcl::rast::SequenceReader& reader,
-                           std::size_t stride,
-                           double period_s,
-                           pcl::rast::DeskewParams& params,
-                           std::string& note);
-
 /// \brief The tools' motion-compensation flags (doc/odometry.md, Motion compensation).
 struct DeskewFlags
 {
@@ -63,8 +44,8 @@ void addDeskewFlags(ArgParser& parser, DeskewFlags& flags);
 /// \throws std::invalid_argument naming the flag and the value.
 void checkDeskewFlags(const DeskewFlags& flags);
 
-/// \brief What the flags make of \a params for \a reader's scans (resolveDeskewMode,
-/// configureDeskewTiming); \a reason and \a timing say why (log, summary).
+/// \brief What the flags make of \a params for \a reader's scans: the mode (a time
+/// field, the azimuth or none) and the time base; \a reason and \a timing say why.
 void applyDeskewFlags(const DeskewFlags& flags,
                       const pcl::rast::SequenceReader& reader,
                       std::size_t stride,
