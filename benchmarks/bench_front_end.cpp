@@ -31,7 +31,7 @@ struct Data
 {
   std::vector<Cloud::ConstPtr> scans;
   std::vector<Cloud::ConstPtr> non_ground;
-  std::vector<rast::RangeRasterImage> rasters;
+  std::vector<rast::RangeRasterImage<pcl::PointXYZI>> rasters;
   std::vector<rast::RasterFeatureSet> features;
   bool ok = false;
 };
@@ -54,11 +54,11 @@ data()
       rast::GroundRemovalResult<pcl::PointXYZI> g;
       ground.segment(g);
       out.non_ground.push_back(g.non_ground);
-      rast::RangeRasterImage raster(params.raster);
+      rast::RangeRasterImage<pcl::PointXYZI> raster(params.raster);
       raster.setInputCloud(g.non_ground);
       raster.compute();
       out.rasters.push_back(raster);
-      rast::OrbRasterFeatureEstimator orb;
+      rast::OrbRasterFeatureEstimator<pcl::PointXYZI> orb;
       orb.setParams(params.orb);
       orb.setInputRaster(raster);
       rast::RasterFeatureSet f;
@@ -103,7 +103,7 @@ BM_Rasterization(benchmark::State& state)
   if (skipWithoutData(state))
     return;
   const rast::OdometryParams params;
-  rast::RangeRasterImage raster(params.raster);
+  rast::RangeRasterImage<pcl::PointXYZI> raster(params.raster);
   std::size_t i = 0;
   for (auto _ : state) {
     raster.setInputCloud(data().non_ground[i++ % data().non_ground.size()]);
@@ -119,7 +119,7 @@ BM_OrbExtraction(benchmark::State& state)
   if (skipWithoutData(state))
     return;
   const rast::OdometryParams params;
-  rast::OrbRasterFeatureEstimator orb;
+  rast::OrbRasterFeatureEstimator<pcl::PointXYZI> orb;
   orb.setParams(params.orb);
   std::size_t i = 0;
   for (auto _ : state) {

@@ -1,10 +1,10 @@
-# pcl_rast_add_module(<name> [DEPS <modules...>] [LIBS <libraries...>])
+# pcl_rast_add_module(<name> [DEPS <modules...>] [LIBS <libraries...>] [PRIVATE_LIBS <libraries...>])
 #
 # Builds library pcl_rast::<name> (file libpcl_rast_<name>) from <name>/src/*.cpp with public headers in
 # <name>/include/pcl/<name>/, exports it as pcl_rast::<name> and installs it.
 # Sources are globbed (CONFIGURE_DEPENDS) so that adding a unit is one new file.
 function(pcl_rast_add_module name)
-  cmake_parse_arguments(ARG "" "" "DEPS;LIBS" ${ARGN})
+  cmake_parse_arguments(ARG "" "" "DEPS;LIBS;PRIVATE_LIBS" ${ARGN})
   file(GLOB srcs CONFIGURE_DEPENDS "${CMAKE_CURRENT_SOURCE_DIR}/src/*.cpp")
   # The target is pcl_rast_<name>_lib (file libpcl_rast_<name>.so): the plain name is
   # taken by the tools (pcl_rast_slam, pcl_rast_features are programs).
@@ -28,6 +28,9 @@ function(pcl_rast_add_module name)
   endforeach()
   # ${PCL_LIBRARIES}, not single pcl_* targets: those lack their inter-module deps.
   target_link_libraries(${target} PUBLIC ${PCL_LIBRARIES} Eigen3::Eigen ${ARG_LIBS})
+  # Libraries only the sources use (OpenCV): consumers get neither their headers nor
+  # their include paths.
+  target_link_libraries(${target} PRIVATE ${ARG_PRIVATE_LIBS})
   target_compile_options(${target} PRIVATE -Wall -Wextra -Wno-unused-parameter)
   install(TARGETS ${target} EXPORT pcl_rastTargets
           LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}

@@ -71,7 +71,7 @@ processScan(const std::string& path, const Options& options)
   FrameFeatures frame;
   // Reused across repeats, as a pipeline reuses them across frames.
   pcl::rast::SACGroundRemoval<pcl::PointXYZI> ground(options.ground);
-  pcl::rast::OrbRasterFeatureEstimator orb;
+  pcl::rast::OrbRasterFeatureEstimator<pcl::PointXYZI> orb;
   orb.setParams(options.orb);
   orb.setRasterParams(options.raster);
   for (int run = 0; run < options.repeat; ++run) { // repeat > 1: best-of timings
@@ -96,7 +96,10 @@ processScan(const std::string& path, const Options& options)
       frame.orb = result;
     }
     frame.features = std::move(features);
-    frame.image = orb.getRaster().image();
+    const auto& raster = orb.getRaster();
+    frame.image = cv::Mat(raster.height(), raster.width(), CV_8UC1,
+                          const_cast<std::uint8_t*>(raster.grayData()))
+                      .clone();
   }
   std::cerr << "  " << frame.orb.message << "\n";
   std::cout << "timing_ms ground=" << frame.ground_ms << " raster=" << frame.orb.raster_ms

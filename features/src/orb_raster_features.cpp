@@ -108,8 +108,31 @@ OrbRasterFeatureParams::isValid(std::string* why) const
   return true;
 }
 
+struct OrbRasterDetector::Workspace
+{
+  cv::Mat padded, blurred;
+};
+
+OrbRasterDetector::OrbRasterDetector() : workspace_(std::make_unique<Workspace>()) {}
+
+OrbRasterDetector::~OrbRasterDetector() = default;
+
+OrbRasterDetector::OrbRasterDetector(const OrbRasterDetector& other)
+: params_(other.params_)
+, raster_params_(other.raster_params_)
+, workspace_(std::make_unique<Workspace>())
+{}
+
+OrbRasterDetector&
+OrbRasterDetector::operator=(const OrbRasterDetector& other)
+{
+  params_ = other.params_;
+  raster_params_ = other.raster_params_;
+  return *this;
+}
+
 void
-OrbRasterFeatureEstimator::setParams(const OrbRasterFeatureParams& params)
+OrbRasterDetector::setParams(const OrbRasterFeatureParams& params)
 {
   std::string why;
   if (!params.isValid(&why))
@@ -118,7 +141,7 @@ OrbRasterFeatureEstimator::setParams(const OrbRasterFeatureParams& params)
 }
 
 void
-OrbRasterFeatureEstimator::setRasterParams(const RangeRasterParams& params)
+OrbRasterDetector::setRasterParams(const RangeRasterParams& params)
 {
   std::string why;
   if (!params.isValid(&why))
@@ -126,57 +149,27 @@ OrbRasterFeatureEstimator::setRasterParams(const RangeRasterParams& params)
   raster_params_ = params;
 }
 
-void
-OrbRasterFeatureEstimator::setInputCloud(const PointCloud::ConstPtr& cloud)
-{
-  if (!cloud)
-    throw std::invalid_argument("OrbRasterFeatureEstimator::setInputCloud: cloud is null");
-  input_ = cloud;
-  raster_given_ = false;
-}
-
-void
-OrbRasterFeatureEstimator::setInputRaster(const RangeRasterImage& raster)
-{
-  if (!raster.isComputed())
-    throw std::invalid_argument(
-        "OrbRasterFeatureEstimator::setInputRaster: raster not computed (call compute())");
-  raster_ = raster;
-  raster_given_ = true;
-  input_.reset();
-}
-
 OrbRasterFeatureResult
-OrbRasterFeatureEstimator::compute(RasterFeatureSet& features)
+OrbRasterDetector::detect(const RasterGrid& raster, std::vector<RasterKeypoint>& out)
 {
   OrbRasterFeatureResult result;
-  features.points.clear();
-  features.descriptors.clear();
+  out.clear();
 
-  // 1. Rasterize (unless a raster was given).
-  auto start = Clock::now();
-  if (!raster_given_) {
-    if (!input_)
-      throw std::invalid_argument(
-          "OrbRasterFeatureEstimator::compute: no input (call setInputCloud or setInputRaster)");
-    raster_.setParams(raster_params_);
-    raster_.setInputCloud(input_);
-    raster_.compute();
-    result.raster_ms = msSince(start);
-  }
-
-  // 2. Pad by the ORB border so keypoints near the image edge keep their descriptor,
+  // 1. Pad by the ORB border so keypoints near the image edge keep their descriptor,
   //    then Gaussian blur (paper: "First Gaussian blur is applied").
-  start = Clock::now();
+  auto start = Clock::now();
   const int pad = params_.patch_size_px + 1;
-  cv::copyMakeBorder(raster_.image(), padded_, pad, pad, pad, pad, cv::BORDER_CONSTANT, 0);
+  const cv::Mat gray(raster.height(), raster.width(), CV_8UC1,
+                     const_cast<std::uint8_t*>(raster.grayData()));
+  cv::Mat& padded = workspace_->padded;
+  cv::Mat& blurred = workspace_->blurred;
+  cv::copyMakeBorder(gray, padded, pad, pad, pad, pad, cv::BORDER_CONSTANT, 0);
   if (params_.blur_sigma_px > 0.0)
-    cv::GaussianBlur(padded_, blurred_, cv::Size(0, 0), params_.blur_sigma_px);
+    cv::GaussianBlur(padded, blurred, cv::Size(0, 0), params_.blur_sigma_px);
   else
-    padded_.copyTo(blurred_);
-  const cv::Mat& blurred = blurred_;
+    padded.copyTo(blurred);
 
-  // 3. FAST corners (Harris-ranked, oriented by ORB's intensity centroid); the
+  // 2. FAST corners (Harris-ranked, oriented by ORB's intensity centroid); the
   //    threshold is halved while too few are found.
   const int candidate_pool = 4 * params_.max_features; // before bucketing
   auto orb = cv::ORB::create(candidate_pool, static_cast<float>(params_.scale_factor),
@@ -200,50 +193,89 @@ OrbRasterFeatureEstimator::compute(RasterFeatureSet& features)
   result.num_bucketed = keypoints.size();
   result.detect_ms = msSince(start);
 
-  // 4. Descriptors (the keypoints keep their orientation), then lift to 3D.
+  // 3. Descriptors (the keypoints keep their orientation), then the input point behind
+  //    every keypoint's pixel.
   start = Clock::now();
   cv::Mat descriptors;
   if (!keypoints.empty())
     orb->compute(blurred, keypoints, descriptors);
-  const auto& cloud = *raster_.getInputCloud();
-  features.points.reserve(keypoints.size());
-  features.descriptors.reserve(keypoints.size());
+  out.reserve(keypoints.size());
   for (std::size_t k = 0; k < keypoints.size(); ++k) {
     const cv::KeyPoint& kp = keypoints[k];
     const float u = kp.pt.x - pad, v = kp.pt.y - pad;
-    const int index = raster_.nearestPixelIndex(static_cast<int>(std::lround(u)),
-                                                static_cast<int>(std::lround(v)),
-                                                params_.lift_search_radius_px);
+    const int index = raster.nearestPixelIndex(static_cast<int>(std::lround(u)),
+                                               static_cast<int>(std::lround(v)),
+                                               params_.lift_search_radius_px);
     if (index < 0) {
       ++result.num_unlifted;
       continue;
     }
-    RasterFeaturePoint point;
-    point.getVector3fMap() = cloud[index].getVector3fMap();
-    point.u = u;
-    point.v = v;
-    point.response = kp.response;
-    point.angle_deg = kp.angle;
-    point.octave = kp.octave;
-    features.points.push_back(point);
-    OrbDescriptor descriptor;
-    std::memcpy(descriptor.data(), descriptors.ptr<std::uint8_t>(static_cast<int>(k)), 32);
-    features.descriptors.push_back(descriptor);
+    RasterKeypoint lifted;
+    lifted.u = u;
+    lifted.v = v;
+    lifted.response = kp.response;
+    lifted.angle_deg = kp.angle;
+    lifted.octave = kp.octave;
+    lifted.index = index;
+    std::memcpy(lifted.descriptor.data(), descriptors.ptr<std::uint8_t>(static_cast<int>(k)),
+                32);
+    out.push_back(lifted);
   }
-  features.points.width = static_cast<std::uint32_t>(features.points.size());
-  features.points.height = 1;
-  features.points.is_dense = true;
-  features.points.header = cloud.header;
   result.describe_ms = msSince(start);
-
-  result.num_features = features.size();
-  result.success = result.num_features > 0;
-  std::ostringstream msg;
-  msg << result.num_features << " features (" << result.num_detected << " detected at FAST "
-      << threshold << ", " << result.num_bucketed << " after bucketing, " << result.num_unlifted
-      << " without 3D point)";
-  result.message = msg.str();
+  result.num_features = out.size();
   return result;
+}
+
+namespace {
+
+/// x, y, z and the raster keypoint fields, between RasterFeaturePoint and ORBSignature256.
+template <typename PointIn, typename PointOut>
+void
+copyRasterKeypoint(const PointIn& in, PointOut& out)
+{
+  out.getVector4fMap() = in.getVector4fMap();
+  out.u = in.u;
+  out.v = in.v;
+  out.response = in.response;
+  out.angle_deg = in.angle_deg;
+  out.octave = in.octave;
+}
+
+} // namespace
+
+void
+toSignatureCloud(const RasterFeatureSet& set, pcl::PointCloud<ORBSignature256>& cloud)
+{
+  if (set.points.size() != set.descriptors.size())
+    throw std::invalid_argument("toSignatureCloud: " + std::to_string(set.points.size()) +
+                                " points but " + std::to_string(set.descriptors.size()) +
+                                " descriptors");
+  cloud.resize(set.size());
+  for (std::size_t i = 0; i < set.size(); ++i) {
+    ORBSignature256& q = cloud[i];
+    copyRasterKeypoint(set.points[i], q);
+    std::memcpy(q.descriptor, set.descriptors[i].data(), 32);
+  }
+  cloud.width = static_cast<std::uint32_t>(cloud.size());
+  cloud.height = 1;
+  cloud.is_dense = set.points.is_dense;
+  cloud.header = set.points.header;
+}
+
+void
+fromSignatureCloud(const pcl::PointCloud<ORBSignature256>& cloud, RasterFeatureSet& set)
+{
+  set.points.resize(cloud.size());
+  set.descriptors.resize(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const ORBSignature256& q = cloud[i];
+    copyRasterKeypoint(q, set.points[i]);
+    std::memcpy(set.descriptors[i].data(), q.descriptor, 32);
+  }
+  set.points.width = static_cast<std::uint32_t>(cloud.size());
+  set.points.height = 1;
+  set.points.is_dense = cloud.is_dense;
+  set.points.header = cloud.header;
 }
 
 } // namespace rast

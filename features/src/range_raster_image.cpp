@@ -26,17 +26,6 @@ toPixel(float u)
   return static_cast<int>(std::floor(u + 0.5f));
 }
 
-/// Reuse \a image's buffer across frames (no page faults on fresh memory), unless
-/// a copy of this raster still shares it: then allocate a new one, so copies keep
-/// the image they were made with.
-void
-prepareImage(cv::Mat& image, int rows, int cols, int type)
-{
-  if (image.u && image.u->refcount > 1)
-    image.release();
-  image.create(rows, cols, type);
-}
-
 } // namespace
 
 bool
@@ -131,7 +120,7 @@ rasterToPoint(const RangeRasterParams& params, const Eigen::Vector2f& uv, float 
 }
 
 void
-RangeRasterImage::setParams(const RangeRasterParams& params)
+RasterGrid::setParams(const RangeRasterParams& params)
 {
   std::string why;
   if (!params.isValid(&why))
@@ -141,38 +130,30 @@ RangeRasterImage::setParams(const RangeRasterParams& params)
 }
 
 void
-RangeRasterImage::setInputCloud(const PointCloud::ConstPtr& cloud)
+RasterGrid::rasterize(const float* xyz,
+                      std::size_t stride_bytes,
+                      std::size_t num_points,
+                      const pcl::Indices* indices)
 {
-  if (!cloud)
-    throw std::invalid_argument("RangeRasterImage::setInputCloud: cloud is null");
-  input_ = cloud;
-  computed_ = false;
-}
-
-void
-RangeRasterImage::compute()
-{
-  if (!input_)
-    throw std::invalid_argument("RangeRasterImage::compute: no input cloud (call setInputCloud)");
   const int w = width(), h = height();
   const std::size_t num_pixels = static_cast<std::size_t>(w) * static_cast<std::size_t>(h);
-  prepareImage(height_image_, h, w, CV_32FC1);
-  prepareImage(index_image_, h, w, CV_32SC1);
-  prepareImage(gray_image_, h, w, CV_8UC1);
-  auto* heights = height_image_.ptr<float>();
-  auto* indices = index_image_.ptr<int>();
-  auto* gray = gray_image_.ptr<std::uint8_t>();
+  // Reuse the buffers across frames (no page faults on fresh memory), unless a copy of
+  // this raster still shares them: then allocate new ones, so copies keep their images.
+  if (!buffers_ || buffers_.use_count() > 1)
+    buffers_ = std::make_shared<Buffers>();
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  std::fill(indices, indices + num_pixels, -1);
-  std::fill(heights, heights + num_pixels, nan);
-  std::fill(gray, gray + num_pixels, std::uint8_t(0));
+  buffers_->index.assign(num_pixels, -1);
+  buffers_->height.assign(num_pixels, nan);
+  buffers_->gray.assign(num_pixels, std::uint8_t(0));
+  int* pixel_index = buffers_->index.data();
+  float* heights = buffers_->height.data();
+  std::uint8_t* gray = buffers_->gray.data();
 
   // One pass over the points: keep the highest point of every pixel. The occupied
   // pixels are listed on the way, so the gray values touch only those.
   num_projected_ = 0;
   std::vector<int> occupied;
   occupied.reserve(4096);
-  const PointCloud& cloud = *input_;
   const float fw = static_cast<float>(w), fh = static_cast<float>(h);
   auto keep = [&](std::size_t i, float u, float v, float z) {
     // toPixel(u) = floor(u + 0.5); for a shifted value in [0, size) floor is the
@@ -183,33 +164,50 @@ RangeRasterImage::compute()
     const int col = static_cast<int>(cu), row = static_cast<int>(cv);
     ++num_projected_;
     const int k = row * w + col;
-    if (indices[k] < 0) {
+    if (pixel_index[k] < 0) {
       occupied.push_back(k);
-      indices[k] = static_cast<int>(i);
+      pixel_index[k] = static_cast<int>(i);
       heights[k] = z;
     }
     else if (z > heights[k]) {
-      indices[k] = static_cast<int>(i);
+      pixel_index[k] = static_cast<int>(i);
       heights[k] = z;
     }
+  };
+  const auto* bytes = reinterpret_cast<const unsigned char*>(xyz);
+  auto pointAt = [&](std::size_t i) {
+    return reinterpret_cast<const float*>(bytes + i * stride_bytes);
+  };
+  const std::size_t count = indices ? indices->size() : num_points;
+  auto pointIndex = [&](std::size_t k) -> std::size_t {
+    if (!indices)
+      return k;
+    const auto i = (*indices)[k];
+    if (i < 0 || static_cast<std::size_t>(i) >= num_points)
+      throw std::out_of_range("RangeRasterImage::compute: index " + std::to_string(i) +
+                              " outside the cloud of " + std::to_string(num_points) +
+                              " points");
+    return static_cast<std::size_t>(i);
   };
   if (params_.projection == RasterProjection::kOrthographic) {
     // projectToRaster's bird's-eye view, with the parameters hoisted out of the loop.
     const double half_extent = params_.orthographic.half_extent_m;
     const double resolution = params_.orthographic.resolution_m;
-    for (std::size_t i = 0; i < cloud.size(); ++i) {
-      const auto& p = cloud[i];
-      if (!(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)))
+    for (std::size_t k = 0; k < count; ++k) {
+      const std::size_t i = pointIndex(k);
+      const float* p = pointAt(i);
+      if (!(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2])))
         continue;
-      const float u = static_cast<float>((half_extent - p.y) / resolution - 0.5);
-      const float v = static_cast<float>((half_extent - p.x) / resolution - 0.5);
-      keep(i, u, v, p.z);
+      const float u = static_cast<float>((half_extent - p[1]) / resolution - 0.5);
+      const float v = static_cast<float>((half_extent - p[0]) / resolution - 0.5);
+      keep(i, u, v, p[2]);
     }
   }
   else {
     Eigen::Vector2f uv;
-    for (std::size_t i = 0; i < cloud.size(); ++i) {
-      const Eigen::Vector3f p = cloud[i].getVector3fMap();
+    for (std::size_t k = 0; k < count; ++k) {
+      const std::size_t i = pointIndex(k);
+      const Eigen::Vector3f p = Eigen::Map<const Eigen::Vector3f>(pointAt(i));
       if (projectToRaster(params_, p, uv))
         keep(i, uv.x(), uv.y(), p.z());
     }
@@ -223,7 +221,7 @@ RangeRasterImage::compute()
 }
 
 bool
-RangeRasterImage::project(const Eigen::Vector3f& p, Eigen::Vector2f& uv) const
+RasterGrid::project(const Eigen::Vector3f& p, Eigen::Vector2f& uv) const
 {
   if (!projectToRaster(params_, p, uv))
     return false;
@@ -232,7 +230,7 @@ RangeRasterImage::project(const Eigen::Vector3f& p, Eigen::Vector2f& uv) const
 }
 
 bool
-RangeRasterImage::projectToPixel(const Eigen::Vector3f& p, int& col, int& row) const
+RasterGrid::projectToPixel(const Eigen::Vector3f& p, int& col, int& row) const
 {
   Eigen::Vector2f uv;
   if (!project(p, uv))
@@ -243,26 +241,31 @@ RangeRasterImage::projectToPixel(const Eigen::Vector3f& p, int& col, int& row) c
 }
 
 int
-RangeRasterImage::pixelIndex(int col, int row) const
+RasterGrid::pixelIndex(int col, int row) const
 {
-  if (!computed_ || col < 0 || row < 0 || col >= index_image_.cols ||
-      row >= index_image_.rows)
+  if (!computed_ || col < 0 || row < 0 || col >= width() || row >= height())
     return -1;
-  return index_image_.at<int>(row, col);
+  return buffers_->index[static_cast<std::size_t>(row) * width() + col];
 }
 
-bool
-RangeRasterImage::pixelToPoint(int col, int row, PointT& point) const
+std::uint8_t
+RasterGrid::grayAt(int col, int row) const
 {
-  const int index = pixelIndex(col, row);
-  if (index < 0)
-    return false;
-  point = (*input_)[index];
-  return true;
+  if (!computed_ || col < 0 || row < 0 || col >= width() || row >= height())
+    return 0;
+  return buffers_->gray[static_cast<std::size_t>(row) * width() + col];
+}
+
+float
+RasterGrid::heightAt(int col, int row) const
+{
+  if (!computed_ || col < 0 || row < 0 || col >= width() || row >= height())
+    return std::numeric_limits<float>::quiet_NaN();
+  return buffers_->height[static_cast<std::size_t>(row) * width() + col];
 }
 
 int
-RangeRasterImage::nearestPixelIndex(int col, int row, int radius_px) const
+RasterGrid::nearestPixelIndex(int col, int row, int radius_px) const
 {
   int index = pixelIndex(col, row);
   if (index >= 0)

@@ -47,7 +47,6 @@ SACGroundRemovalParams::isValid(std::string* why) const
 } // namespace pcl
 
 // PCL's libraries hold its base classes for PCL's own point types only.
-#define PCL_RAST_TIME_POINT_TYPES (pcl::rast::PointXYZIRT)(pcl::rast::PointOuster)
 PCL_INSTANTIATE(PCLBase, PCL_RAST_TIME_POINT_TYPES)
 PCL_INSTANTIATE(FilterIndices, PCL_RAST_TIME_POINT_TYPES)
 

@@ -468,7 +468,7 @@ struct Odometry::Impl
 
   OdometryParams params;
   SACGroundRemoval<pcl::PointXYZI> ground;
-  OrbRasterFeatureEstimator orb;
+  OrbRasterFeatureEstimator<pcl::PointXYZI> orb;
   VoxelPlaneMap map;
   int map_scans = 0; ///< scans inserted into the map so far
   /// The scan that started the map, while it could not be motion-compensated yet (no

@@ -22,10 +22,10 @@
 #include <set>
 #include <stdexcept>
 
-using pcl::rast::OrbRasterFeatureEstimator;
+using OrbRasterFeatureEstimator = pcl::rast::OrbRasterFeatureEstimator<pcl::PointXYZI>;
 using pcl::rast::OrbRasterFeatureParams;
 using pcl::rast::OrbRasterFeatureResult;
-using pcl::rast::RangeRasterImage;
+using RangeRasterImage = pcl::rast::RangeRasterImage<pcl::PointXYZI>;
 using pcl::rast::RangeRasterParams;
 using pcl::rast::RasterFeatureSet;
 using pcl::rast::RasterProjection;

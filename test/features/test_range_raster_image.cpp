@@ -5,13 +5,14 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <map>
 #include <random>
 #include <stdexcept>
 
-using pcl::rast::RangeRasterImage;
+using RangeRasterImage = pcl::rast::RangeRasterImage<pcl::PointXYZI>;
 using pcl::rast::RangeRasterParams;
 using pcl::rast::RasterProjection;
 using Cloud = pcl::PointCloud<pcl::PointXYZI>;
@@ -90,18 +91,18 @@ TEST_P(RangeRasterProjections, MaxHeightPerPixelAndExactLiftBack)
     EXPECT_EQ(lifted.y, (*cloud)[expected].y);
     EXPECT_EQ(lifted.z, (*cloud)[expected].z);
     EXPECT_GE(lifted.z, p.z);
-    EXPECT_EQ(raster.heightImage().at<float>(row, col), lifted.z);
-    EXPECT_EQ(raster.image().at<std::uint8_t>(row, col),
+    EXPECT_EQ(raster.heightAt(col, row), lifted.z);
+    EXPECT_EQ(raster.grayAt(col, row),
               pcl::rast::heightToGray(raster.getParams(), lifted.z));
   }
   // Every other pixel is empty.
   int empty = 0;
   for (int row = 0; row < raster.height(); ++row)
     for (int col = 0; col < raster.width(); ++col)
-      if (raster.indexImage().at<int>(row, col) < 0) {
+      if (raster.pixelIndex(col, row) < 0) {
         ++empty;
-        EXPECT_EQ(raster.image().at<std::uint8_t>(row, col), 0);
-        EXPECT_TRUE(std::isnan(raster.heightImage().at<float>(row, col)));
+        EXPECT_EQ(raster.grayAt(col, row), 0);
+        EXPECT_TRUE(std::isnan(raster.heightAt(col, row)));
       }
   EXPECT_EQ(static_cast<std::size_t>(empty),
             static_cast<std::size_t>(raster.width()) * raster.height() - highest.size());
@@ -151,10 +152,12 @@ TEST_P(RangeRasterProjections, EmptyCloudGivesEmptyImage)
   raster.setInputCloud(std::make_shared<Cloud>());
   raster.compute();
   EXPECT_EQ(raster.numOccupiedPixels(), 0u);
-  EXPECT_EQ(cv::countNonZero(raster.image()), 0);
-  EXPECT_EQ(raster.image().type(), CV_8UC1);
-  EXPECT_EQ(raster.heightImage().type(), CV_32FC1);
-  EXPECT_EQ(raster.indexImage().type(), CV_32SC1);
+  const std::size_t num_pixels = static_cast<std::size_t>(raster.width()) * raster.height();
+  ASSERT_NE(raster.grayData(), nullptr);
+  EXPECT_EQ(std::count(raster.grayData(), raster.grayData() + num_pixels, 0), num_pixels);
+  EXPECT_EQ(std::count(raster.indexData(), raster.indexData() + num_pixels, -1), num_pixels);
+  EXPECT_TRUE(std::all_of(raster.heightData(), raster.heightData() + num_pixels,
+                          [](float h) { return std::isnan(h); }));
 }
 
 INSTANTIATE_TEST_SUITE_P(Projections,

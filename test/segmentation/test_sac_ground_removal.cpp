@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include "test_data.h"
+#include "xyz_point_types.h"
 
 #include <chrono>
 #include <cmath>
@@ -304,12 +305,7 @@ planeAndBoxesAs(std::size_t num_ground, std::size_t num_per_box, unsigned seed)
 template <typename PointT>
 class GroundFilter : public ::testing::Test
 {};
-using FilterPointTypes = ::testing::Types<pcl::PointXYZ,
-                                          pcl::PointXYZI,
-                                          pcl::PointXYZINormal,
-                                          pcl::rast::PointXYZIRT,
-                                          pcl::rast::PointOuster>;
-TYPED_TEST_SUITE(GroundFilter, FilterPointTypes);
+TYPED_TEST_SUITE(GroundFilter, pcl_rast_test::XyzPointTypes);
 
 } // namespace
 

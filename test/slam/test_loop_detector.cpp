@@ -72,7 +72,7 @@ makeKeyFrame(KeyFrameId id, const Cloud::ConstPtr& scan)
   ground.setInputCloud(scan);
   pcl::rast::GroundRemovalResult<pcl::PointXYZI> g;
   ground.segment(g);
-  pcl::rast::OrbRasterFeatureEstimator orb;
+  pcl::rast::OrbRasterFeatureEstimator<pcl::PointXYZI> orb;
   orb.setInputCloud(g.non_ground ? Cloud::ConstPtr(g.non_ground) : scan);
   orb.compute(kf->features);
   const auto voxels = pcl::rast::voxelDownsample(pcl::rast::toPointVector(*scan), 0.25);

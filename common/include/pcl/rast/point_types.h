@@ -59,3 +59,8 @@ POINT_CLOUD_REGISTER_POINT_STRUCT(
 #define PCL_RAST_XYZ_POINT_TYPES                                                         \
   (pcl::PointXYZ)(pcl::PointXYZI)(pcl::PointXYZINormal)(pcl::rast::PointXYZIRT)(         \
       pcl::rast::PointOuster)
+
+/// The types of PCL_RAST_XYZ_POINT_TYPES that PCL does not know: PCL's own templates
+/// that pcl_rast's classes derive from or use (PCLBase, FilterIndices, search) are
+/// instantiated for them in pcl_rast's libraries.
+#define PCL_RAST_TIME_POINT_TYPES (pcl::rast::PointXYZIRT)(pcl::rast::PointOuster)

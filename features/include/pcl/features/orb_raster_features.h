@@ -7,10 +7,12 @@
 
 #include <pcl/features/range_raster_image.h>
 #include <pcl/features/raster_feature_types.h>
+#include <pcl/keypoints/keypoint.h>
 
 #include <cstddef>
 #include <memory>
 #include <string>
+#include <vector>
 
 namespace pcl {
 namespace rast {
@@ -64,25 +66,29 @@ struct OrbRasterFeatureResult
   std::string message;
 };
 
-/// \brief ORB features of a rasterized cloud, lifted to 3D.
-///
-/// \code
-/// pcl::rast::OrbRasterFeatureEstimator orb;
-/// orb.setInputCloud(non_ground);   // rasterized internally with getRasterParams()
-/// pcl::rast::RasterFeatureSet features;
-/// const auto result = orb.compute(features);
-/// \endcode
-/// Feature x, y, z are the coordinates of the rasterized point, i.e. in the frame of
-/// the input cloud; u, v are pixel coordinates in the raster (OpenCV convention).
+/// \brief The point-type independent part of OrbRasterFeatureEstimator: parameters and
+/// FAST/ORB on a computed raster (OpenCV stays inside the library).
 /// \ingroup features
-class OrbRasterFeatureEstimator
+class OrbRasterDetector
 {
 public:
-  using Ptr = std::shared_ptr<OrbRasterFeatureEstimator>;
-  using ConstPtr = std::shared_ptr<const OrbRasterFeatureEstimator>;
-  using PointCloud = RangeRasterImage::PointCloud;
+  /// \brief One keypoint of the raster with its descriptor and the input index of
+  /// the point it lifts to.
+  struct RasterKeypoint
+  {
+    float u, v;          ///< pixel coordinates in the raster
+    float response;      ///< corner response
+    float angle_deg;     ///< ORB orientation
+    int octave;          ///< pyramid level
+    int index;           ///< input index of the 3D point behind the pixel
+    OrbDescriptor descriptor;
+  };
 
-  OrbRasterFeatureEstimator() = default;
+  OrbRasterDetector();
+  ~OrbRasterDetector();
+  OrbRasterDetector(const OrbRasterDetector& other);
+  OrbRasterDetector&
+  operator=(const OrbRasterDetector& other);
 
   /// \throws std::invalid_argument when !params.isValid().
   void
@@ -103,38 +109,112 @@ public:
     return raster_params_;
   }
 
+  /// \brief Blur, FAST with the adaptive threshold, grid bucketing, ORB descriptors and
+  /// lifting on a computed raster. Fills the counts and detect/describe timings of the
+  /// result (not success or message).
+  OrbRasterFeatureResult
+  detect(const RasterGrid& raster, std::vector<RasterKeypoint>& keypoints);
+
+protected:
+  OrbRasterFeatureParams params_;
+  RangeRasterParams raster_params_;
+
+private:
+  struct Workspace; ///< work images, reused across calls
+  std::unique_ptr<Workspace> workspace_;
+};
+
+/// \brief ORB features of a rasterized cloud, lifted to 3D: a pcl::Keypoint whose
+/// output points are ORBSignature256 (3D point, pixel and descriptor), with
+/// getKeypointsIndices() naming the input point behind every feature. No search method
+/// or radius is needed: neighbourhoods are pixels of the raster.
+///
+/// \code
+/// pcl::rast::OrbRasterFeatureEstimator<pcl::PointXYZ> orb;
+/// orb.setInputCloud(non_ground);   // rasterized internally with getRasterParams()
+/// pcl::PointCloud<pcl::rast::ORBSignature256> features;
+/// orb.compute(features);           // PCL's interface; or, with counts and timings:
+/// pcl::rast::RasterFeatureSet set;
+/// const pcl::rast::OrbRasterFeatureResult result = orb.compute(set);
+/// \endcode
+/// Feature x, y, z are the coordinates of the rasterized point, i.e. in the frame of
+/// the input cloud; u, v are pixel coordinates in the raster (OpenCV convention).
+/// setIndices restricts the rasterized points.
+/// \ingroup features
+template <typename PointInT>
+class OrbRasterFeatureEstimator : public pcl::Keypoint<PointInT, ORBSignature256>,
+                                  public OrbRasterDetector
+{
+public:
+  using Ptr = std::shared_ptr<OrbRasterFeatureEstimator<PointInT>>;
+  using ConstPtr = std::shared_ptr<const OrbRasterFeatureEstimator<PointInT>>;
+  using PointCloud = pcl::PointCloud<PointInT>;
+  using PointCloudConstPtr = typename PointCloud::ConstPtr;
+  using PointCloudOut = pcl::PointCloud<ORBSignature256>;
+
+  OrbRasterFeatureEstimator() { this->name_ = "OrbRasterFeatureEstimator"; }
+
   /// \brief The cloud to rasterize (usually the non-ground cloud).
   /// \throws std::invalid_argument when null.
   void
-  setInputCloud(const PointCloud::ConstPtr& cloud);
+  setInputCloud(const PointCloudConstPtr& cloud) override;
 
-  /// \brief An already computed raster (shared, not copied deeply).
+  /// \brief An already computed raster (shared, not copied deeply); its cloud becomes
+  /// the input cloud.
   /// \throws std::invalid_argument when \a raster has not been computed.
   void
-  setInputRaster(const RangeRasterImage& raster);
+  setInputRaster(const RangeRasterImage<PointInT>& raster);
 
-  /// \brief Extract the features.
+  /// \brief PCL's pcl::Keypoint::compute(PointCloudOut&).
+  using pcl::Keypoint<PointInT, ORBSignature256>::compute;
+
+  /// \brief Extract the features into the SLAM's feature set.
   /// \param[out] features points (3D + pixel + angle) and their descriptors
   /// \return counts, the FAST threshold used, timings and a message
   /// \throws std::invalid_argument when neither an input cloud nor a raster was set.
   OrbRasterFeatureResult
   compute(RasterFeatureSet& features);
 
-  /// \brief The raster the last compute() used.
-  const RangeRasterImage&
+  /// \brief Counts, timings and message of the last extraction (either interface).
+  const OrbRasterFeatureResult&
+  getResult() const
+  {
+    return result_;
+  }
+
+  /// \brief The raster the last extraction used.
+  const RangeRasterImage<PointInT>&
   getRaster() const
   {
     return raster_;
   }
 
+protected:
+  /// \brief PCLBase's checks only: the raster needs no search method.
+  bool
+  initCompute() override;
+  void
+  detectKeypoints(PointCloudOut& output) override;
+
+  using pcl::Keypoint<PointInT, ORBSignature256>::input_;
+  using pcl::Keypoint<PointInT, ORBSignature256>::indices_;
+  using pcl::Keypoint<PointInT, ORBSignature256>::fake_indices_;
+  using pcl::Keypoint<PointInT, ORBSignature256>::keypoints_indices_;
+
 private:
-  OrbRasterFeatureParams params_;
-  RangeRasterParams raster_params_;
-  PointCloud::ConstPtr input_;
-  RangeRasterImage raster_;
+  /// \brief Rasterize (unless given) and detect; fills result_.
+  void
+  extract(std::vector<OrbRasterDetector::RasterKeypoint>& keypoints);
+
+  RangeRasterImage<PointInT> raster_;
   bool raster_given_ = false;
-  cv::Mat padded_, blurred_; ///< work images, reused across calls
+  OrbRasterFeatureResult result_;
+  std::vector<OrbRasterDetector::RasterKeypoint> keypoints_;
 };
 
 } // namespace rast
 } // namespace pcl
+
+#ifdef PCL_NO_PRECOMPILE
+#include <pcl/features/impl/orb_raster_features.hpp>
+#endif

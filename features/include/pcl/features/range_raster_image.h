@@ -6,16 +6,17 @@
 /// back to 3D exactly. See doc/raster_projection.md.
 /// \ingroup features
 
+#include <pcl/pcl_base.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 
 #include <Eigen/Core>
-#include <opencv2/core.hpp>
 
 #include <cstddef>
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <vector>
 
 namespace pcl {
 namespace rast {
@@ -101,29 +102,20 @@ heightToGray(const RangeRasterParams& params, float z_m)
   return static_cast<std::uint8_t>(g + 0.5f);
 }
 
-/// \brief A cloud rasterized to a top-down max-height image, with the index of the
-/// highest point of every pixel.
+/// \brief The images of a rasterized cloud, independent of the point type: a top-down
+/// max-height image (gray), the max height per pixel and the input index of the highest
+/// point per pixel. All three are row-major, width() x height(), row 0 at the top.
 ///
-/// \code
-/// pcl::rast::RangeRasterImage raster(params);
-/// raster.setInputCloud(non_ground);
-/// raster.compute();
-/// cv::imwrite("raster.png", raster.image());
-/// \endcode
-/// Copies are cheap (the images are reference counted and shared); a later compute()
-/// on the original does not change the images of a copy.
+/// Copies are cheap (the buffers are shared); a later compute on the original does not
+/// change the images of a copy. RangeRasterImage<PointT> adds the input cloud.
 /// \ingroup features
-class RangeRasterImage
+class RasterGrid
 {
 public:
-  using Ptr = std::shared_ptr<RangeRasterImage>;
-  using ConstPtr = std::shared_ptr<const RangeRasterImage>;
-  using PointT = pcl::PointXYZI;
-  using PointCloud = pcl::PointCloud<PointT>;
-
-  RangeRasterImage() = default;
+  RasterGrid() = default;
   /// \throws std::invalid_argument when !params.isValid().
-  explicit RangeRasterImage(const RangeRasterParams& params) { setParams(params); }
+  explicit RasterGrid(const RangeRasterParams& params) { setParams(params); }
+  virtual ~RasterGrid() = default;
 
   /// \throws std::invalid_argument when !params.isValid().
   void
@@ -134,22 +126,7 @@ public:
     return params_;
   }
 
-  /// \brief \throws std::invalid_argument when null.
-  void
-  setInputCloud(const PointCloud::ConstPtr& cloud);
-  PointCloud::ConstPtr
-  getInputCloud() const
-  {
-    return input_;
-  }
-
-  /// \brief Rasterize the input cloud (one pass over the points). Non-finite points
-  /// and points outside the image are skipped.
-  /// \throws std::invalid_argument when no input cloud was set.
-  void
-  compute();
-
-  /// \brief Whether compute() has run on the current input and parameters.
+  /// \brief Whether the images are computed for the current input and parameters.
   bool
   isComputed() const
   {
@@ -165,13 +142,8 @@ public:
   bool
   projectToPixel(const Eigen::Vector3f& p, int& col, int& row) const;
 
-  /// \brief The highest point of pixel (col, row): exactly the input point with that
-  /// index. False when the pixel is empty or outside the image.
-  bool
-  pixelToPoint(int col, int row, PointT& point) const;
-
   /// \brief Input-cloud index of the highest point of pixel (col, row), or -1 when
-  /// the pixel is empty or outside the image.
+  /// the pixel is empty, outside the image or nothing is computed.
   int
   pixelIndex(int col, int row) const;
 
@@ -181,23 +153,33 @@ public:
   int
   nearestPixelIndex(int col, int row, int radius_px) const;
 
-  /// \brief CV_8UC1 gray image: 0 = empty, 1..255 = max height (see heightToGray).
-  const cv::Mat&
-  image() const
+  /// \brief Gray level of pixel (col, row): 0 = empty, 1..255 = max height (see
+  /// heightToGray); 0 outside the image.
+  std::uint8_t
+  grayAt(int col, int row) const;
+  /// \brief Max height [m] of pixel (col, row); NaN where empty or outside.
+  float
+  heightAt(int col, int row) const;
+
+  /// \brief The gray image, row-major (null before the first compute). An 8-bit
+  /// single-channel image for any image library, e.g.
+  /// `cv::Mat(h, w, CV_8UC1, const_cast<std::uint8_t*>(grid.grayData()))`.
+  const std::uint8_t*
+  grayData() const
   {
-    return gray_image_;
+    return buffers_ ? buffers_->gray.data() : nullptr;
   }
-  /// \brief CV_32FC1 max height [m] per pixel; NaN where empty.
-  const cv::Mat&
-  heightImage() const
+  /// \brief Max height per pixel [m], row-major; NaN where empty.
+  const float*
+  heightData() const
   {
-    return height_image_;
+    return buffers_ ? buffers_->height.data() : nullptr;
   }
-  /// \brief CV_32SC1 input index of the max-height point per pixel; -1 where empty.
-  const cv::Mat&
-  indexImage() const
+  /// \brief Input index of the max-height point per pixel, row-major; -1 where empty.
+  const int*
+  indexData() const
   {
-    return index_image_;
+    return buffers_ ? buffers_->index.data() : nullptr;
   }
 
   int
@@ -223,14 +205,92 @@ public:
     return num_occupied_;
   }
 
+protected:
+  /// \brief Rasterize points whose x, y, z floats start at \a xyz and repeat every
+  /// \a stride_bytes (any PCL point type with PCL_ADD_POINT4D). When \a indices is
+  /// given only those points are used; the index image holds point indices either way.
+  void
+  rasterize(const float* xyz,
+            std::size_t stride_bytes,
+            std::size_t num_points,
+            const pcl::Indices* indices);
+
+  /// \brief Forget the images (after a new input or parameters).
+  void
+  invalidate()
+  {
+    computed_ = false;
+  }
+
 private:
+  struct Buffers
+  {
+    std::vector<std::uint8_t> gray;
+    std::vector<float> height;
+    std::vector<int> index;
+  };
+
   RangeRasterParams params_;
-  PointCloud::ConstPtr input_;
-  cv::Mat gray_image_, height_image_, index_image_;
+  std::shared_ptr<Buffers> buffers_;
   std::size_t num_projected_ = 0;
   std::size_t num_occupied_ = 0;
   bool computed_ = false;
 };
 
+/// \brief A cloud rasterized to a top-down max-height image, with the index of the
+/// highest point of every pixel. The name is the paper's; the image is not a range
+/// image but a bird's-eye view (or the paper's pinhole view from 70 m below) whose
+/// pixel value is the maximum height of the points in it.
+///
+/// A pcl::PCLBase: setInputCloud and setIndices as everywhere in PCL (with indices,
+/// only those points are rasterized). Instantiated for PCL_RAST_XYZ_POINT_TYPES
+/// (pcl/rast/point_types.h); other types with x, y, z work with
+/// PCL_NO_PRECOMPILE.
+/// \code
+/// pcl::rast::RangeRasterImage<pcl::PointXYZ> raster(params);
+/// raster.setInputCloud(non_ground);
+/// raster.compute();
+/// cv::Mat gray(raster.height(), raster.width(), CV_8UC1,
+///              const_cast<std::uint8_t*>(raster.grayData()));
+/// \endcode
+/// \ingroup features
+template <typename PointT>
+class RangeRasterImage : public pcl::PCLBase<PointT>, public RasterGrid
+{
+public:
+  using Ptr = std::shared_ptr<RangeRasterImage<PointT>>;
+  using ConstPtr = std::shared_ptr<const RangeRasterImage<PointT>>;
+  using PointCloud = pcl::PointCloud<PointT>;
+  using PointCloudConstPtr = typename PointCloud::ConstPtr;
+
+  RangeRasterImage() = default;
+  /// \throws std::invalid_argument when !params.isValid().
+  explicit RangeRasterImage(const RangeRasterParams& params) : RasterGrid(params) {}
+
+  /// \brief \throws std::invalid_argument when null.
+  void
+  setInputCloud(const PointCloudConstPtr& cloud) override;
+
+  /// \brief Rasterize the input cloud (one pass over the points). Non-finite points
+  /// and points outside the image are skipped.
+  /// \throws std::invalid_argument when no input cloud was set.
+  void
+  compute();
+
+  /// \brief The highest point of pixel (col, row): exactly the input point with that
+  /// index. False when the pixel is empty or outside the image.
+  bool
+  pixelToPoint(int col, int row, PointT& point) const;
+
+protected:
+  using pcl::PCLBase<PointT>::input_;
+  using pcl::PCLBase<PointT>::indices_;
+  using pcl::PCLBase<PointT>::fake_indices_;
+};
+
 } // namespace rast
 } // namespace pcl
+
+#ifdef PCL_NO_PRECOMPILE
+#include <pcl/features/impl/range_raster_image.hpp>
+#endif

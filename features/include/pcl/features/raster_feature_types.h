@@ -12,6 +12,16 @@
 #include <cstdint>
 #include <vector>
 
+/// The raster keypoint of a lifted feature: pixel column u and row v in the raster
+/// image, the FAST/Harris corner response, the ORB orientation in degrees [0, 360) and
+/// the pyramid level it was found on.
+#define PCL_RAST_ADD_RASTER_KEYPOINT                                                     \
+  float u;                                                                               \
+  float v;                                                                               \
+  float response;                                                                        \
+  float angle_deg;                                                                       \
+  int octave
+
 namespace pcl {
 namespace rast {
 
@@ -20,16 +30,26 @@ namespace rast {
 struct EIGEN_ALIGN16 RasterFeaturePoint
 {
   PCL_ADD_POINT4D;
-  float u;         ///< pixel column of the keypoint in the raster image
-  float v;         ///< pixel row of the keypoint in the raster image
-  float response;  ///< FAST/Harris corner response
-  float angle_deg; ///< ORB orientation in degrees, [0, 360)
-  int octave;      ///< pyramid level the keypoint was found on
+  PCL_RAST_ADD_RASTER_KEYPOINT;
   PCL_MAKE_ALIGNED_OPERATOR_NEW
 };
 
 /// \brief A 256-bit ORB (rBRIEF) descriptor.
 using OrbDescriptor = std::array<std::uint8_t, 32>;
+
+/// \brief One ORB feature as a PCL point: the lifted 3D point, its raster keypoint and
+/// its 256-bit descriptor, like PCL's BRISKSignature512. A
+/// `pcl::PointCloud<ORBSignature256>` saves to PCD and loads back (the descriptor is a
+/// 32-count unsigned 8-bit field). The SLAM keeps RasterFeatureSet instead, whose
+/// descriptors sit contiguously for brute-force matching; toSignatureCloud and
+/// fromSignatureCloud convert.
+struct EIGEN_ALIGN16 ORBSignature256
+{
+  PCL_ADD_POINT4D;
+  PCL_RAST_ADD_RASTER_KEYPOINT;
+  std::uint8_t descriptor[32]; ///< rBRIEF bits, OpenCV's byte order
+  PCL_MAKE_ALIGNED_OPERATOR_NEW
+};
 
 /// \brief Hamming distance between two ORB descriptors (0..256).
 inline int
@@ -72,8 +92,23 @@ struct RasterFeatureSet
   }
 };
 
+/// \brief The features of \a set as one cloud of ORBSignature256 (header copied).
+/// \throws std::invalid_argument when the set's points and descriptors differ in number.
+void
+toSignatureCloud(const RasterFeatureSet& set, pcl::PointCloud<ORBSignature256>& cloud);
+
+/// \brief The inverse of toSignatureCloud.
+void
+fromSignatureCloud(const pcl::PointCloud<ORBSignature256>& cloud, RasterFeatureSet& set);
+
 } // namespace rast
 } // namespace pcl
+
+POINT_CLOUD_REGISTER_POINT_STRUCT(pcl::rast::ORBSignature256,
+                                  (float, x, x)(float, y, y)(float, z, z)(float, u, u)(
+                                      float, v, v)(float, response, response)(
+                                      float, angle_deg, angle_deg)(int, octave, octave)(
+                                      std::uint8_t[32], descriptor, descriptor))
 
 POINT_CLOUD_REGISTER_POINT_STRUCT(pcl::rast::RasterFeaturePoint,
                                   (float, x, x)(float, y, y)(float, z, z)(float, u, u)(
