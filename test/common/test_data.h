@@ -4,13 +4,32 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+
 #include <cstdlib>
 #include <iterator>
 #include <sys/wait.h>
 #include <filesystem>
+#include <fstream>
+#include <stdexcept>
 #include <string>
 
 namespace pcl_rast_test {
+
+/// \brief A 4x4 rigid transform as 16 numbers, row by row (the scan pairs' references).
+/// \throws std::runtime_error when the file does not hold 16 numbers.
+inline Eigen::Isometry3d
+readMatrix4(const std::filesystem::path& path)
+{
+  std::ifstream in(path);
+  Eigen::Isometry3d T;
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c)
+      in >> T.matrix()(r, c);
+  if (!in)
+    throw std::runtime_error("cannot read a 4x4 matrix from " + path.string());
+  return T;
+}
 
 /// \brief The real-data folder `../shared/data` beside the checkout, or the folder
 /// named by the environment variable PCL_RAST_DATA_DIR. Empty when absent.

@@ -17,6 +17,8 @@
 
 namespace {
 
+using pcl_rast_test::readMatrix4;
+
 using pcl::rast::PointToPlaneParams;
 using pcl::rast::PointToPlaneTarget;
 using pcl::rast::PointVector;
@@ -268,19 +270,6 @@ TEST(PointToPlaneRefinement, InvalidInputThrows)
 }
 
 // ---------------------------------------------------------------- real scan pairs
-
-Eigen::Isometry3d
-readMatrix4(const std::filesystem::path& path)
-{
-  std::ifstream in(path);
-  Eigen::Matrix4d m;
-  for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c)
-      in >> m(r, c);
-  EXPECT_TRUE(in) << "cannot read 4x4 matrix from " << path;
-  Eigen::Isometry3d T(m);
-  return T;
-}
 
 /// Refine from identity; print accuracy with and without refinement and timings.
 pcl::rast::PointToPlaneResult

@@ -18,6 +18,8 @@
 
 namespace {
 
+using pcl_rast_test::readMatrix4;
+
 namespace rast = pcl::rast;
 using Cloud = pcl::PointCloud<pcl::PointXYZI>;
 
@@ -607,19 +609,6 @@ TEST(Odometry, SkipFrameExtrapolatesAndIndicesMustIncrease)
 }
 
 // ---- real data ----
-
-Eigen::Isometry3d
-readMatrix4(const std::filesystem::path& path)
-{
-  std::ifstream in(path);
-  Eigen::Matrix4d m;
-  for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c)
-      in >> m(r, c);
-  Eigen::Isometry3d T;
-  T.matrix() = m;
-  return T;
-}
 
 /// Track the target (frame 0) then the source (frame 1): the second pose is T_target_source.
 rast::Pose3d
