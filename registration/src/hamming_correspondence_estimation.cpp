@@ -4,6 +4,7 @@
 
 #include <pcl/registration/hamming_correspondence_estimation.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -176,15 +177,75 @@ HammingCorrespondenceEstimation::setParams(const HammingMatchParams& params)
 }
 
 void
-HammingCorrespondenceEstimation::determineCorrespondences(
-    pcl::Correspondences& correspondences) const
+HammingCorrespondenceEstimation::determineCorrespondences(pcl::Correspondences& correspondences,
+                                                          double max_distance)
 {
-  if (!source_ || !target_)
+  match(correspondences, max_distance, params_.mutual_check);
+}
+
+void
+HammingCorrespondenceEstimation::determineReciprocalCorrespondences(
+    pcl::Correspondences& correspondences, double max_distance)
+{
+  match(correspondences, max_distance, true);
+}
+
+void
+HammingCorrespondenceEstimation::match(pcl::Correspondences& correspondences,
+                                       double max_distance,
+                                       bool mutual)
+{
+  if (!input_ || !target_)
     throw std::invalid_argument(
         std::string("HammingCorrespondenceEstimation::determineCorrespondences: no input ") +
-        (source_ ? "target" : "source") + " set");
-  correspondences = matchHamming(*source_, *target_, params_, T_target_source_guess_);
+        (input_ ? "target" : "source") + " set");
+  // The clouds (or their indexed subsets) as feature sets; indices map back.
+  auto gather = [](const pcl::PointCloud<ORBSignature256>& cloud,
+                   const pcl::IndicesPtr& indices, RasterFeatureSet& set) {
+    if (!indices) {
+      fromSignatureCloud(cloud, set);
+      return;
+    }
+    pcl::PointCloud<ORBSignature256> subset;
+    for (const auto i : *indices) {
+      if (i < 0 || static_cast<std::size_t>(i) >= cloud.size())
+        throw std::out_of_range("HammingCorrespondenceEstimation: index " + std::to_string(i) +
+                                " outside the cloud of " + std::to_string(cloud.size()) +
+                                " features");
+      subset.push_back(cloud[i]);
+    }
+    fromSignatureCloud(subset, set);
+  };
+  const bool source_indexed = indices_ && indices_->size() != input_->size();
+  RasterFeatureSet source, target;
+  gather(*input_, source_indexed ? indices_ : nullptr, source);
+  gather(*target_, target_indices_, target);
+
+  HammingMatchParams params = params_;
+  params.mutual_check = mutual;
+  if (max_distance < params.max_hamming_distance)
+    params.max_hamming_distance = std::max(0, static_cast<int>(std::floor(max_distance)));
+  correspondences = matchHamming(source, target, params, T_target_source_guess_);
+  for (auto& c : correspondences) {
+    if (source_indexed)
+      c.index_query = (*indices_)[c.index_query];
+    if (target_indices_)
+      c.index_match = (*target_indices_)[c.index_match];
+  }
 }
 
 } // namespace rast
 } // namespace pcl
+
+// The base class builds k-d trees over the feature clouds on construction (never used
+// here); PCL compiles its search classes for its own point types only.
+#include <pcl/impl/instantiate.hpp>
+#include <pcl/impl/pcl_base.hpp>
+#include <pcl/kdtree/impl/kdtree_flann.hpp>
+#include <pcl/search/impl/kdtree.hpp>
+#include <pcl/search/impl/search.hpp>
+
+PCL_INSTANTIATE(PCLBase, (pcl::rast::ORBSignature256))
+PCL_INSTANTIATE(Search, (pcl::rast::ORBSignature256))
+PCL_INSTANTIATE(KdTree, (pcl::rast::ORBSignature256))
+PCL_INSTANTIATE(KdTreeFLANN, (pcl::rast::ORBSignature256))

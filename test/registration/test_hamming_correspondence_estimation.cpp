@@ -178,22 +178,92 @@ TEST(HammingCorrespondenceEstimation, SpatialGateUsesTheInitialGuess)
   EXPECT_TRUE(pcl::rast::matchHamming(source, target, params, guess).empty());
 }
 
-TEST(HammingCorrespondenceEstimation, ClassWrapperAndValidation)
+/// Features as the PCL estimator sees them: ORBSignature256 clouds.
+pcl::PointCloud<pcl::rast::ORBSignature256>::Ptr
+signatures(const RasterFeatureSet& set)
 {
-  auto source = std::make_shared<RasterFeatureSet>();
-  auto target = std::make_shared<RasterFeatureSet>();
-  add(*source, withBits(3));
-  add(*target, withBits(3));
+  auto cloud = std::make_shared<pcl::PointCloud<pcl::rast::ORBSignature256>>();
+  pcl::rast::toSignatureCloud(set, *cloud);
+  return cloud;
+}
+
+TEST(HammingCorrespondenceEstimation, PclEstimatorEqualsMatchHamming)
+{
+  std::mt19937 rng(57);
+  RasterFeatureSet source, target;
+  for (int i = 0; i < 60; ++i) {
+    const OrbDescriptor d = randomDescriptor(rng);
+    add(source, d, float(i));
+    add(target, flipped(d, i % 200, 10 + i % 30), float(i));
+  }
+  for (int i = 0; i < 20; ++i)
+    add(target, randomDescriptor(rng));
+  pcl::registration::CorrespondenceEstimationBase<pcl::rast::ORBSignature256,
+                                                  pcl::rast::ORBSignature256>::Ptr
+      estimation(new pcl::rast::HammingCorrespondenceEstimation);
+  estimation->setInputSource(signatures(source));
+  estimation->setInputTarget(signatures(target));
+  pcl::Correspondences through_pcl;
+  estimation->determineCorrespondences(through_pcl);
+  const pcl::Correspondences direct = pcl::rast::matchHamming(source, target);
+  ASSERT_GT(direct.size(), 30u);
+  ASSERT_EQ(through_pcl.size(), direct.size());
+  for (std::size_t k = 0; k < direct.size(); ++k) {
+    EXPECT_EQ(through_pcl[k].index_query, direct[k].index_query);
+    EXPECT_EQ(through_pcl[k].index_match, direct[k].index_match);
+    EXPECT_EQ(through_pcl[k].distance, direct[k].distance);
+  }
+
+  // max_distance tightens the Hamming bound.
+  pcl::Correspondences close;
+  estimation->determineCorrespondences(close, 20.0);
+  ASSERT_FALSE(close.empty());
+  EXPECT_LT(close.size(), direct.size());
+  for (const auto& c : close)
+    EXPECT_LE(c.distance, 20.0f);
+
+  // A clone matches the same way; reciprocal matching is the mutual check.
+  auto clone = estimation->clone();
+  pcl::Correspondences reciprocal;
+  clone->determineReciprocalCorrespondences(reciprocal);
+  EXPECT_EQ(reciprocal.size(), direct.size()); // the default params check mutually
+}
+
+TEST(HammingCorrespondenceEstimation, PclEstimatorHonoursIndices)
+{
+  std::mt19937 rng(58);
+  RasterFeatureSet set;
+  for (int i = 0; i < 40; ++i)
+    add(set, randomDescriptor(rng), float(i));
+  pcl::rast::HammingCorrespondenceEstimation estimation;
+  estimation.setInputSource(signatures(set));
+  estimation.setInputTarget(signatures(set));
+  auto odd = std::make_shared<pcl::Indices>();
+  for (int i = 1; i < 40; i += 2)
+    odd->push_back(i);
+  estimation.setIndices(odd);
+  estimation.setIndicesTarget(odd);
+  pcl::Correspondences c;
+  estimation.determineCorrespondences(c);
+  ASSERT_EQ(c.size(), odd->size());
+  for (const auto& m : c) {
+    EXPECT_EQ(m.index_query % 2, 1) << "source index outside the given indices";
+    EXPECT_EQ(m.index_match, m.index_query);
+  }
+  odd->push_back(99);
+  EXPECT_THROW(estimation.determineCorrespondences(c), std::out_of_range);
+}
+
+TEST(HammingCorrespondenceEstimation, ValidationNamesTheBadValue)
+{
   pcl::rast::HammingCorrespondenceEstimation estimation;
   pcl::Correspondences c;
   EXPECT_THROW(estimation.determineCorrespondences(c), std::invalid_argument);
-  estimation.setInputSource(source);
-  estimation.setInputTarget(target);
-  estimation.determineCorrespondences(c);
-  EXPECT_EQ(c.size(), 1u);
 
-  target->descriptors.push_back(withBits(1)); // points and descriptors now differ
-  EXPECT_THROW(estimation.determineCorrespondences(c), std::invalid_argument);
+  RasterFeatureSet source;
+  add(source, withBits(3));
+  source.descriptors.push_back(withBits(1)); // points and descriptors now differ
+  EXPECT_THROW(pcl::rast::matchHamming(source, source), std::invalid_argument);
 
   HammingMatchParams bad;
   bad.ratio = 1.5;
@@ -206,7 +276,8 @@ TEST(HammingCorrespondenceEstimation, ClassWrapperAndValidation)
   EXPECT_FALSE(bad.isValid());
   bad = HammingMatchParams();
   bad.spatial_gate_radius_m = -1.0;
-  EXPECT_THROW(pcl::rast::matchHamming(*source, *source, bad), std::invalid_argument);
+  source.descriptors.pop_back();
+  EXPECT_THROW(pcl::rast::matchHamming(source, source, bad), std::invalid_argument);
 }
 
 } // namespace
