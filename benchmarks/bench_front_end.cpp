@@ -18,7 +18,7 @@
 #include <pcl/registration/rigid_ransac.h>
 #include <pcl/segmentation/sac_ground_removal.h>
 #include <pcl/slam/odometry.h>
-#include <pcl/slam/sequence_reader.h>
+#include <pcl/io/sequence_reader.h>
 #include <vector>
 
 namespace {

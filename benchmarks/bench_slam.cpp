@@ -8,7 +8,7 @@
 #include <benchmark/benchmark.h>
 
 #include <pcl/slam/bundle_adjustment.h>
-#include <pcl/slam/lidar_simulator.h>
+#include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/rast_slam.h>
 
 #include <memory>

@@ -11,8 +11,8 @@
 
 #include <chrono>
 #include <iostream>
-#include <pcl/slam/pose_io.h>
-#include <pcl/slam/trajectory_evaluation.h>
+#include <pcl/io/pose_io.h>
+#include <pcl/evaluation/trajectory_evaluation.h>
 #include <stdexcept>
 #include <string>
 

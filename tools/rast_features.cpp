@@ -13,7 +13,7 @@
 #include <pcl/registration/hamming_correspondence_estimation.h>
 #include <pcl/registration/rigid_ransac.h>
 #include <pcl/segmentation/sac_ground_removal.h>
-#include <pcl/slam/sequence_reader.h>
+#include <pcl/io/sequence_reader.h>
 
 #include <Eigen/Geometry>
 #include <opencv2/imgcodecs.hpp>

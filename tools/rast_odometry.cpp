@@ -15,8 +15,8 @@
 /// run ended by an error.
 
 #include <pcl/slam/odometry.h>
-#include <pcl/slam/pose_io.h>
-#include <pcl/slam/sequence_reader.h>
+#include <pcl/io/pose_io.h>
+#include <pcl/io/sequence_reader.h>
 
 #include "cli.h"
 #include "sensor_choice.h"

@@ -11,7 +11,7 @@
 /// LiDAR poses with the KITTI axis change, unless `-traj-frame lidar`; a TUM file
 /// (`t x y z qx qy qz qw`) holds body (LiDAR) poses and its timestamps are kept.
 /// `-raw-sweep` writes raw (motion-distorted) sweeps instead of instantaneous scans;
-/// the spin convention is documented in pcl/slam/lidar_simulator.h. `-imperfections`
+/// the spin convention is documented in pcl/simulation/lidar_simulator.h. `-imperfections`
 /// adds the sensor imperfections of pcl::rast::SensorImperfectionParams. DIR/scenes.txt
 /// names the scene type (pcl::rast::SceneType) of every written frame.
 /// `-moving-cars -traffic realistic` drives realistic traffic around the ego vehicle
@@ -21,8 +21,8 @@
 
 #include <chrono>
 #include <cstdio>
-#include <pcl/slam/lidar_simulator.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/simulation/lidar_simulator.h>
+#include <pcl/io/pose_io.h>
 #include <stdexcept>
 #include <string>
 

@@ -14,12 +14,12 @@
 #include "sensor_choice.h"
 
 #include <pcl/segmentation/sac_ground_removal.h>
-#include <pcl/slam/lidar_simulator.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/simulation/lidar_simulator.h>
+#include <pcl/io/pose_io.h>
 #include <pcl/slam/rast_slam.h>
-#include <pcl/slam/sequence_reader.h>
+#include <pcl/io/sequence_reader.h>
 #include <pcl/slam/slam_map.h>
-#include <pcl/slam/trajectory_evaluation.h>
+#include <pcl/evaluation/trajectory_evaluation.h>
 
 #include <nlohmann/json.hpp>
 

@@ -7,7 +7,7 @@
 #include <fstream>
 #include <limits>
 #include <pcl/slam/g2o_io.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/rast/atomic_file.h>
 #include <sstream>
 #include <stdexcept>
 #include <vector>

@@ -1,4 +1,5 @@
 #include <pcl/slam/slam_map.h>
+#include <pcl/rast/atomic_file.h>
 
 #include <pcl/io/pcd_io.h>
 

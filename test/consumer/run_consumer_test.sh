@@ -11,5 +11,11 @@ mkdir -p "$work"
 cmake --install "$build_dir" --prefix "$work/prefix" >/dev/null
 cmake -S "$here/project" -B "$work/build" -DCMAKE_PREFIX_PATH="$work/prefix" \
       -DCMAKE_BUILD_TYPE=Release >/dev/null
+# The public headers need no OpenCV: its include path must not reach the consumer.
+if grep -rqi "opencv" "$work/build/CMakeFiles/consumer.dir/flags.make"; then
+  echo "consumer: OpenCV's include path leaks into the consumer's flags:" >&2
+  grep -i "opencv" "$work/build/CMakeFiles/consumer.dir/flags.make" >&2
+  exit 1
+fi
 cmake --build "$work/build" -j2 >/dev/null
 "$work/build/consumer"

@@ -6,7 +6,7 @@
 
 #include <pcl/features/orb_raster_features.h>
 #include <pcl/segmentation/sac_ground_removal.h>
-#include <pcl/slam/sequence_reader.h>
+#include <pcl/io/sequence_reader.h>
 
 #include <gtest/gtest.h>
 

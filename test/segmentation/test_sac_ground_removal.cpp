@@ -3,7 +3,7 @@
 
 #include <pcl/rast/point_types.h>
 #include <pcl/segmentation/sac_ground_removal.h>
-#include <pcl/slam/sequence_reader.h>
+#include <pcl/io/sequence_reader.h>
 
 #include <gtest/gtest.h>
 

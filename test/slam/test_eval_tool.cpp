@@ -9,7 +9,7 @@
 
 #include <unistd.h>
 #include <nlohmann/json.hpp>
-#include <pcl/slam/pose_io.h>
+#include <pcl/io/pose_io.h>
 #include <string>
 #include <sys/wait.h>
 

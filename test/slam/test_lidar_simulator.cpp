@@ -20,8 +20,8 @@
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/kdtree/kdtree_flann.h>
-#include <pcl/slam/lidar_simulator.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/simulation/lidar_simulator.h>
+#include <pcl/io/pose_io.h>
 #include <sstream>
 
 namespace {

@@ -4,9 +4,9 @@
 /// finish, every stored pose must stay on SO(3), and an error in the loop-closing
 /// thread must end the run without losing what was processed.
 
-#include <pcl/slam/lidar_simulator.h>
+#include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/rast_slam.h>
-#include <pcl/slam/trajectory_evaluation.h>
+#include <pcl/evaluation/trajectory_evaluation.h>
 
 #include <gtest/gtest.h>
 

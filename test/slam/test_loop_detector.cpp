@@ -14,9 +14,9 @@
 #include <pcl/features/orb_raster_features.h>
 #include <pcl/registration/point_to_plane_refinement.h>
 #include <pcl/segmentation/sac_ground_removal.h>
-#include <pcl/slam/lidar_simulator.h>
+#include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/loop_detector.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/io/pose_io.h>
 
 #include "test_data.h"
 #include <random>

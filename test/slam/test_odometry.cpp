@@ -2,9 +2,9 @@
 /// \brief Odometry on simulated sequences (drift, 2 Hz with sharp turns, bad frames,
 /// key-frame rule) and on the real scan pairs of ../shared/data.
 
-#include <pcl/slam/lidar_simulator.h>
+#include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/odometry.h>
-#include <pcl/slam/sequence_reader.h>
+#include <pcl/io/sequence_reader.h>
 
 #include "test_data.h"
 

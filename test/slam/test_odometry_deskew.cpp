@@ -4,9 +4,9 @@
 /// instantaneous scans of the same drive; compensating scans that need none costs
 /// accuracy, which is why -deskew auto leaves scans without a time field alone.
 
-#include <pcl/slam/lidar_simulator.h>
+#include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/odometry.h>
-#include <pcl/slam/trajectory_evaluation.h>
+#include <pcl/evaluation/trajectory_evaluation.h>
 
 #include <gtest/gtest.h>
 

@@ -3,9 +3,9 @@
 /// input frame, first pose identity), timing.csv columns, unreadable frames skipped
 /// with the constant-velocity pose, exit codes on bad arguments.
 
-#include <pcl/slam/lidar_simulator.h>
-#include <pcl/slam/pose_io.h>
-#include <pcl/slam/sequence_reader.h>
+#include <pcl/simulation/lidar_simulator.h>
+#include <pcl/io/pose_io.h>
+#include <pcl/io/sequence_reader.h>
 
 #include "test_data.h"
 

@@ -7,9 +7,9 @@
 #include <gtest/gtest.h>
 #include <iostream>
 #include <memory>
-#include <pcl/slam/lidar_simulator.h>
+#include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/odometry.h>
-#include <pcl/slam/trajectory_evaluation.h>
+#include <pcl/evaluation/trajectory_evaluation.h>
 #include <vector>
 
 namespace {

@@ -5,7 +5,7 @@
 #include <filesystem>
 #include <fstream>
 #include <gtest/gtest.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/io/pose_io.h>
 #include <random>
 #include <string>
 

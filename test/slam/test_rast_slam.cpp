@@ -4,9 +4,9 @@
 
 #include "test_data.h"
 
-#include <pcl/slam/lidar_simulator.h>
+#include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/rast_slam.h>
-#include <pcl/slam/trajectory_evaluation.h>
+#include <pcl/evaluation/trajectory_evaluation.h>
 
 #include <gtest/gtest.h>
 

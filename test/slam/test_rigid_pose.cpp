@@ -4,7 +4,7 @@
 /// the documented tolerance and rejected beyond it.
 
 #include <pcl/slam/pose_graph.h>
-#include <pcl/slam/rigid_pose.h>
+#include <pcl/rast/rigid_pose.h>
 #include <pcl/slam/slam_map.h>
 
 #include <gtest/gtest.h>

@@ -15,7 +15,7 @@
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
-#include <pcl/slam/sequence_reader.h>
+#include <pcl/io/sequence_reader.h>
 #include <random>
 #include <string>
 #include <unistd.h>

@@ -7,7 +7,7 @@
 
 #include <cstdlib>
 #include <fstream>
-#include <pcl/slam/pose_io.h>
+#include <pcl/io/pose_io.h>
 #include <string>
 #include <sys/wait.h>
 #include <vector>

@@ -1,8 +1,8 @@
 /// The pcl_rast_slam command-line contract: output files, line counts, summary keys,
 /// corrupt scans skipped and listed, and clear errors (exit codes) on bad arguments.
 
-#include <pcl/slam/lidar_simulator.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/simulation/lidar_simulator.h>
+#include <pcl/io/pose_io.h>
 
 #include <pcl/io/pcd_io.h>
 

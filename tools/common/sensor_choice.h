@@ -6,7 +6,7 @@
 #include "cli.h"
 
 #include <pcl/slam/odometry.h>
-#include <pcl/slam/sequence_reader.h>
+#include <pcl/io/sequence_reader.h>
 
 #include <cstddef>
 #include <map>

@@ -7,7 +7,7 @@
 
 #include <pcl/features/range_raster_image.h>
 #include <pcl/slam/keyframe.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/rast/rigid_pose.h>
 
 #include <Eigen/Core>
 

@@ -23,7 +23,7 @@
 #include <Eigen/Core>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
-#include <pcl/slam/rigid_pose.h>
+#include <pcl/rast/rigid_pose.h>
 #include <string>
 #include <vector>
 

@@ -6,7 +6,7 @@
 /// \ingroup slam
 
 #include <pcl/features/raster_feature_types.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/rast/rigid_pose.h>
 
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>

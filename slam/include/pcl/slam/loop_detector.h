@@ -19,7 +19,7 @@
 #include <pcl/registration/rigid_ransac.h>
 #include <pcl/slam/blob_store.h>
 #include <pcl/slam/keyframe.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/rast/rigid_pose.h>
 #include <shared_mutex>
 #include <string>
 #include <unordered_map>

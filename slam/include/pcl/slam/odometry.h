@@ -20,7 +20,7 @@
 #include <pcl/segmentation/sac_ground_removal.h>
 #include <pcl/slam/deskew.h>
 #include <pcl/slam/keyframe.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/rast/rigid_pose.h>
 #include <string>
 #include <vector>
 

@@ -10,7 +10,7 @@
 #include <cstddef>
 #include <map>
 #include <optional>
-#include <pcl/slam/pose_io.h>
+#include <pcl/rast/rigid_pose.h>
 #include <string>
 #include <vector>
 

@@ -9,7 +9,7 @@
 #include <pcl/features/raster_feature_types.h>
 #include <pcl/slam/blob_store.h>
 #include <pcl/slam/keyframe.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/rast/rigid_pose.h>
 
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>

@@ -2,9 +2,10 @@
 /// \file pose_io.h
 /// \brief Reading and writing trajectories: KITTI (3x4 row-major) and TUM
 /// (`t x y z qx qy qz qw`) pose files, and the KITTI camera-0 <-> LiDAR frame change.
-/// \ingroup slam
+/// \ingroup io
 
-#include <pcl/slam/rigid_pose.h>
+#include <pcl/rast/atomic_file.h>
+#include <pcl/rast/rigid_pose.h>
 
 #include <cstdio>
 #include <functional>
@@ -73,18 +74,6 @@ readKittiCalibTr(const std::string& calib_path);
 /// then re-based so the first pose is the identity.
 PoseVector
 cameraToLidarPoses(const PoseVector& T_cam0_cami, const Pose3d& T_cam_lidar);
-
-/// \brief Write \a content to \a path atomically: a temporary file in the same
-/// folder, flushed, then renamed over \a path. Never leaves a half-written file.
-/// \throws std::runtime_error naming the path on failure.
-void
-writeFileAtomically(const std::string& path, const std::string& content);
-
-/// \brief writeFileAtomically for files too large to hold: \a write fills the temporary
-/// file piece by piece and returns false on a write error (it may also throw).
-/// \throws std::runtime_error naming the path on failure; nothing is left behind.
-void
-writeFileAtomically(const std::string& path, const std::function<bool(std::FILE*)>& write);
 
 } // namespace rast
 } // namespace pcl

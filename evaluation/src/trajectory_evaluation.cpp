@@ -7,7 +7,7 @@
 #include <iomanip>
 #include <nlohmann/json.hpp>
 #include <numeric>
-#include <pcl/slam/trajectory_evaluation.h>
+#include <pcl/evaluation/trajectory_evaluation.h>
 #include <sstream>
 #include <stdexcept>
 #include <tuple>

@@ -4,7 +4,7 @@
 /// is re-orthonormalized (normalizedPose, composePoses), and every pose that comes from
 /// outside (a file, the API) is checked against a documented tolerance and projected
 /// onto SE(3) (projectToRigid).
-/// \ingroup slam
+/// \ingroup common
 ///
 /// Why both: a pose composed from single-precision registration results carries
 /// ~1e-7 of rotation error per step, and a key-frame chain of thousands of steps adds

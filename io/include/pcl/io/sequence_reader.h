@@ -2,7 +2,7 @@
 /// \file sequence_reader.h
 /// \brief Streaming reader for a folder of LiDAR scans (KITTI `.bin`, PCD, PLY):
 /// lists the files once, then reads one scan at a time on demand.
-/// \ingroup slam
+/// \ingroup io
 
 #include <cstddef>
 #include <cstdint>
@@ -19,7 +19,7 @@ namespace rast {
 /// \brief A single scan could not be read: the file is missing, unreadable, empty,
 /// truncated or unparseable. The message names the file and what is wrong; the
 /// caller may skip the frame and continue with the next one.
-/// \ingroup slam
+/// \ingroup io
 class ScanReadError : public std::runtime_error
 {
 public:
@@ -51,7 +51,7 @@ private:
 /// \throws ScanReadError naming the file when it is missing, unreadable, empty,
 /// a truncated `.bin` (size not a multiple of 16), unparseable or lacks x/y/z,
 /// or has an unsupported extension.
-/// \ingroup slam
+/// \ingroup io
 pcl::PointCloud<pcl::PointXYZI>::Ptr
 readScan(const std::string& path, std::size_t* num_dropped_non_finite = nullptr);
 
@@ -60,11 +60,11 @@ readScan(const std::string& path, std::size_t* num_dropped_non_finite = nullptr)
 /// \param[in] path the output file
 /// \param[in] cloud the points, written as they are (non-finite values included)
 /// \throws std::runtime_error naming the file when it cannot be written.
-/// \ingroup slam
+/// \ingroup io
 void writeKittiBin(const std::string& path, const pcl::PointCloud<pcl::PointXYZI>& cloud);
 
 /// \brief Which frames of a sequence to read.
-/// \ingroup slam
+/// \ingroup io
 struct SequenceReaderOptions
 {
   /// First file index to read (0-based, in sorted order).
@@ -97,7 +97,7 @@ struct SequenceReaderOptions
 /// 1 % of the steps between consecutive points go backwards (along each row of an
 /// organized cloud, along the whole list otherwise): the cloud has lost its firing
 /// order. KITTI `.bin` scans have no time field: no times, no warning.
-/// \ingroup slam
+/// \ingroup io
 struct ScanFrame
 {
   /// Position in the selected (first/last/stride) list: 0, 1, 2, ...
@@ -148,7 +148,7 @@ struct ScanFrame
 ///   process(frame);
 /// }
 /// \endcode
-/// \ingroup slam
+/// \ingroup io
 class SequenceReader
 {
 public:

@@ -17,7 +17,7 @@
 /// every pose) -> per frame: sensor pose T_world_sensor = T_world_body *
 /// T_body_sensor(t), one ray per beam and azimuth step, range noise / dropouts /
 /// intensity from a counter-based hash of (seed, frame, ray) so frame i never depends on
-/// other frames. \ingroup slam
+/// other frames. \ingroup simulation
 ///
 /// With LidarSimulatorParams::imperfections the sensor is as flawed as a real one:
 /// per-beam calibration error, spurious early returns, mixed pixels at depth edges and
@@ -46,7 +46,7 @@
 #include <memory>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
-#include <pcl/slam/pose_io.h>
+#include <pcl/io/pose_io.h>
 #include <string>
 #include <vector>
 

@@ -8,7 +8,7 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <memory>
-#include <pcl/slam/lidar_simulator.h>
+#include <pcl/simulation/lidar_simulator.h>
 #include <vector>
 
 namespace pcl {

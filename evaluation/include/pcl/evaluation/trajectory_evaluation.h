@@ -3,11 +3,11 @@
 /// \brief Trajectory accuracy against ground truth: absolute trajectory error (ATE)
 /// after Umeyama alignment, the KITTI odometry benchmark's relative errors (exactly as
 /// its devkit `evaluate_odometry.cpp` defines them) and per-frame relative pose error.
-/// \ingroup slam
+/// \ingroup evaluation
 
 #include <cstddef>
 #include <optional>
-#include <pcl/slam/pose_io.h>
+#include <pcl/io/pose_io.h>
 #include <string>
 #include <vector>
 

@@ -8,7 +8,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
-#include <pcl/slam/lidar_simulator.h>
+#include <pcl/simulation/lidar_simulator.h>
 
 #include "simulator_hash.h"
 #include "simulator_traffic.h"

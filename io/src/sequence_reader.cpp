@@ -14,8 +14,8 @@
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
-#include <pcl/slam/pose_io.h>
-#include <pcl/slam/sequence_reader.h>
+#include <pcl/io/pose_io.h>
+#include <pcl/io/sequence_reader.h>
 #include <sstream>
 #include <system_error>
 #include <utility>

@@ -1,7 +1,7 @@
 /// \file rigid_pose.cpp
 /// \brief Keeping poses rigid: normalization of internal poses, checks of external ones.
 
-#include <pcl/slam/rigid_pose.h>
+#include <pcl/rast/rigid_pose.h>
 
 #include <Eigen/SVD>
 #include <algorithm>

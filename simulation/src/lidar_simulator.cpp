@@ -7,11 +7,11 @@
 #include <cstdio>
 #include <filesystem>
 #include <pcl/io/pcd_io.h>
-#include <pcl/slam/lidar_simulator.h>
+#include <pcl/simulation/lidar_simulator.h>
 
 #include "simulator_hash.h"
 #include "simulator_traffic.h"
-#include <pcl/slam/sequence_reader.h> // writeKittiBin
+#include <pcl/io/sequence_reader.h> // writeKittiBin
 #include <sstream>
 #include <stdexcept>
 #include <thread>
