@@ -10,7 +10,7 @@
 /// Ctrl-C stops reading; what was processed so far is finished and written.
 
 #include "cli.h"
-#include "map_render.h"
+#include <pcl/visualization/map_render.h>
 #include "sensor_choice.h"
 
 #include <pcl/segmentation/sac_ground_removal.h>
@@ -91,7 +91,7 @@ public:
   RenderCloud(const Eigen::Matrix3d& R_level,
               const std::vector<Eigen::Vector3d>& keyframe_positions,
               double map_leaf_m,
-              const pcl_rast_tools::MapRenderParams& render)
+              const pcl::rast::MapRenderParams& render)
     : R_(R_level.cast<float>())
   {
     constexpr double kMarginM = 50.0; // about what a scan sees beyond its key-frame
@@ -561,7 +561,7 @@ run(int argc, char** argv)
       p.getVector3fMap() = R * p.getVector3fMap() + t;
     R_level = levellingRotation(first);
   }
-  pcl_rast_tools::MapRenderParams render_params;
+  pcl::rast::MapRenderParams render_params;
   render_params.force_software_fallback = software_render;
   std::vector<Eigen::Vector3d> kf_positions;
   for (const auto& T : kf_poses)
@@ -575,7 +575,7 @@ run(int argc, char** argv)
   });
   pcd.commit();
   const std::size_t map_points = pcd.size();
-  pcl_rast_tools::MapRenderInput render_input;
+  pcl::rast::MapRenderInput render_input;
   render_input.map = &render_map.cloud();
   render_input.map_points_total = map_points;
   for (const auto& T : slam.framePoses())
@@ -599,7 +599,7 @@ run(int argc, char** argv)
   if (sequence_name == "velodyne" || sequence_name == "pcd" || sequence_name == "ply")
     sequence_name = fs::path(reader.scanFolder()).parent_path().filename();
   render_input.title = "pcl_rast_slam: " + sequence_name.string();
-  const auto render = pcl_rast_tools::renderMapTopDown(render_input, render_params,
+  const auto render = pcl::rast::renderMapTopDown(render_input, render_params,
                                                        (out / "render.png").string());
   if (!render.success)
     std::cerr << "pcl_rast_slam: warning: render.png not written: " << render.message << "\n";

@@ -18,4 +18,4 @@ if grep -rqi "opencv" "$work/build/CMakeFiles/consumer.dir/flags.make"; then
   exit 1
 fi
 cmake --build "$work/build" -j2 >/dev/null
-"$work/build/consumer"
+cd "$work" && "$work/build/consumer"

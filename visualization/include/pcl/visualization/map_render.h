@@ -1,10 +1,11 @@
 #pragma once
 /// \file map_render.h
+/// \ingroup visualization
 /// \brief Top-down picture of a SLAM result (merged map, trajectory, loop closures)
 /// written as a PNG, on machines with or without a display.
 ///
-/// Plain data in, file out: the tools fill a MapRenderInput and call
-/// renderMapTopDown(). The scene is rendered offscreen with VTK; without a usable
+/// Plain data in, file out: fill a MapRenderInput and call renderMapTopDown()
+/// (pcl_rast_slam does exactly that). The scene is rendered offscreen with VTK; without a usable
 /// X display a private Xvfb server is started (and always stopped) for the render,
 /// and if VTK still cannot render, the same picture is rasterized with OpenCV.
 /// VTK runs in a forked child process, so an abort or an X I/O error inside
@@ -18,7 +19,8 @@
 #include <utility>
 #include <vector>
 
-namespace pcl_rast_tools {
+namespace pcl {
+namespace rast {
 
 /// \brief An 8-bit RGB colour.
 struct RgbColour
@@ -126,4 +128,5 @@ MapRenderResult renderMapTopDown(const MapRenderInput& input,
                                  const MapRenderParams& params,
                                  const std::string& png_path);
 
-} // namespace pcl_rast_tools
+} // namespace rast
+} // namespace pcl

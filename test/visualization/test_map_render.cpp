@@ -1,7 +1,7 @@
 // Tests of the top-down map render (tools/common/map_render.h): the VTK path on a
 // private Xvfb, the OpenCV fallback, parameter validation and failure paths.
 
-#include "map_render.h"
+#include <pcl/visualization/map_render.h>
 #include "test_data.h"
 
 #include <cerrno>
@@ -22,10 +22,10 @@
 
 namespace {
 
-using pcl_rast_tools::MapRenderInput;
-using pcl_rast_tools::MapRenderParams;
-using pcl_rast_tools::MapRenderResult;
-using pcl_rast_tools::renderMapTopDown;
+using pcl::rast::MapRenderInput;
+using pcl::rast::MapRenderParams;
+using pcl::rast::MapRenderResult;
+using pcl::rast::renderMapTopDown;
 
 /// Sets (or unsets, with nullptr) an environment variable for the scope.
 class ScopedEnv

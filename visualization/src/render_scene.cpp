@@ -1,0 +1,557 @@
+/// \file render_scene.cpp
+/// \brief The scene of a map render and its OpenCV rasterization and overlays.
+
+#include "render_scene.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cctype>
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fcntl.h>
+#include <filesystem>
+#include <limits>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <poll.h>
+#include <signal.h>
+#include <sstream>
+#include <stdexcept>
+#include <sys/prctl.h>
+#include <sys/wait.h>
+#include <thread>
+#include <unistd.h>
+
+namespace pcl {
+namespace rast {
+namespace render_detail {
+
+
+cv::Scalar
+toBgr(const RgbColour& c)
+{
+  return cv::Scalar(c.b, c.g, c.r);
+}
+
+std::vector<cv::Vec3b>
+makeLut(MapColourMap map)
+{
+  int cv_map = cv::COLORMAP_VIRIDIS;
+  if (map == MapColourMap::kCividis)
+    cv_map = cv::COLORMAP_CIVIDIS;
+  else if (map == MapColourMap::kInferno)
+    cv_map = cv::COLORMAP_INFERNO;
+  cv::Mat ramp(1, 256, CV_8UC1);
+  for (int i = 0; i < 256; ++i)
+    ramp.at<std::uint8_t>(0, i) = static_cast<std::uint8_t>(i);
+  cv::Mat colours;
+  cv::applyColorMap(ramp, colours, cv_map);
+  std::vector<cv::Vec3b> lut(256);
+  for (int i = 0; i < 256; ++i)
+    lut[i] = colours.at<cv::Vec3b>(0, i);
+  return lut;
+}
+
+/// The p-th percentile (0..100) of \a values (reordered).
+double
+percentile(std::vector<double>& values, double p)
+{
+  if (values.empty())
+    return 0.0;
+  const auto k = static_cast<std::size_t>(
+      std::llround(p / 100.0 * static_cast<double>(values.size() - 1)));
+  std::nth_element(values.begin(), values.begin() + k, values.end());
+  return values[k];
+}
+
+bool
+isFinite(const Eigen::Vector3d& p)
+{
+  return p.allFinite();
+}
+
+Layout
+makeLayout(const MapRenderParams& params)
+{
+  Layout l;
+  l.scale = std::max(0.35, std::min(params.width_px / 1600.0, params.height_px / 1200.0));
+  l.title_band_px = 84.0 * l.scale;
+  l.bottom_band_px = params.draw_scale_bar ? 64.0 * l.scale : 16.0 * l.scale;
+  l.right_band_px = params.draw_colour_bar ? 170.0 * l.scale : 24.0 * l.scale;
+  l.margin_px = 24.0 * l.scale;
+  return l;
+}
+
+Scene
+prepareScene(const MapRenderInput& input, const MapRenderParams& params)
+{
+  Scene s;
+  s.map_points_total = input.map_points_total > 0 ? input.map_points_total : input.map->size();
+  s.lut_bgr = makeLut(params.colour_map);
+  s.layout = makeLayout(params);
+  const bool by_height = params.colour_by == MapColourBy::kHeight;
+  s.value_label = by_height ? "height [m]" : "intensity";
+
+  // Finite map points, drawn from low to high so that, as in the VTK depth test,
+  // higher structure covers lower structure when seen from above.
+  std::vector<std::pair<float, std::size_t>> order;
+  order.reserve(input.map->size());
+  for (std::size_t i = 0; i < input.map->size(); ++i) {
+    const auto& p = (*input.map)[i];
+    if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z) &&
+        (by_height || std::isfinite(p.intensity)))
+      order.emplace_back(p.z, i);
+  }
+  std::sort(order.begin(), order.end());
+  std::vector<double> values, xs, ys;
+  values.reserve(order.size());
+  xs.reserve(order.size());
+  ys.reserve(order.size());
+  s.points.reserve(order.size());
+  for (const auto& [z, i] : order) {
+    const auto& p = (*input.map)[i];
+    s.points.emplace_back(p.x, p.y, p.z);
+    values.push_back(by_height ? p.z : p.intensity);
+    xs.push_back(p.x);
+    ys.push_back(p.y);
+  }
+
+  // Colour range from robust percentiles.
+  if (!values.empty()) {
+    std::vector<double> tmp = values;
+    s.value_low = percentile(tmp, params.colour_low_percentile);
+    s.value_high = percentile(tmp, params.colour_high_percentile);
+  }
+  if (!(s.value_high - s.value_low > 1e-9))
+    s.value_high = s.value_low + 1.0;
+  s.point_bgr.reserve(values.size());
+  for (double v : values) {
+    const double t =
+        std::clamp((v - s.value_low) / (s.value_high - s.value_low), 0.0, 1.0);
+    s.point_bgr.push_back(s.lut_bgr[static_cast<int>(std::lround(t * 255.0))]);
+  }
+
+  for (const auto& p : input.trajectory)
+    if (isFinite(p))
+      s.trajectory.push_back(p);
+  for (const auto& p : input.ground_truth)
+    if (isFinite(p))
+      s.ground_truth.push_back(p);
+  for (const auto& e : input.loop_edges)
+    if (isFinite(e.first) && isFinite(e.second))
+      s.loop_edges.push_back(e);
+  for (std::size_t i = 1; i < s.trajectory.size(); ++i)
+    s.path_length_m += (s.trajectory[i] - s.trajectory[i - 1]).norm();
+
+  // Bounds: the bulk of the map (0.5 %..99.5 %, so stray points far away do not
+  // shrink it) and everything else in full.
+  double x0 = std::numeric_limits<double>::infinity(), x1 = -x0, y0 = x0, y1 = -x0;
+  double z0 = x0, z1 = -x0;
+  auto grow = [&](const Eigen::Vector3d& p) {
+    x0 = std::min(x0, p.x()), x1 = std::max(x1, p.x());
+    y0 = std::min(y0, p.y()), y1 = std::max(y1, p.y());
+    z0 = std::min(z0, p.z()), z1 = std::max(z1, p.z());
+  };
+  if (!xs.empty()) {
+    const bool robust = xs.size() > 1000;
+    grow({percentile(xs, robust ? 0.5 : 0.0),
+          percentile(ys, robust ? 0.5 : 0.0),
+          s.points.front().z()});
+    grow({percentile(xs, robust ? 99.5 : 100.0),
+          percentile(ys, robust ? 99.5 : 100.0),
+          s.points.back().z()});
+  }
+  for (const auto& p : s.trajectory)
+    grow(p);
+  for (const auto& p : s.ground_truth)
+    grow(p);
+  for (const auto& e : s.loop_edges)
+    grow(e.first), grow(e.second);
+  if (!std::isfinite(x0)) // nothing to draw at all
+    x0 = y0 = z0 = -1.0, x1 = y1 = z1 = 1.0;
+  const double min_extent_m = 1.0;
+  const double cx = 0.5 * (x0 + x1), cy = 0.5 * (y0 + y1);
+  const double ex = std::max(x1 - x0, min_extent_m), ey = std::max(y1 - y0, min_extent_m);
+  s.z_min_m = z0;
+  s.z_top_m = z1;
+
+  // Fit the bounds into the plot area (between the title, legend and colour bar bands).
+  const Layout& l = s.layout;
+  TopDownView& v = s.view;
+  v.width_px = params.width_px;
+  v.height_px = params.height_px;
+  const double plot_x = l.margin_px, plot_y = l.title_band_px + 0.5 * l.margin_px;
+  const double plot_w = std::max(8.0, params.width_px - l.margin_px - l.right_band_px);
+  const double plot_h =
+      std::max(8.0, params.height_px - plot_y - l.bottom_band_px - 0.5 * l.margin_px);
+  v.plot_px = cv::Rect2d(plot_x, plot_y, plot_w, plot_h);
+  v.m_per_px = std::max(ex / plot_w, ey / plot_h);
+  const double plot_cx = plot_x + 0.5 * plot_w, plot_cy = plot_y + 0.5 * plot_h;
+  v.cam_x_m = cx - (plot_cx - 0.5 * params.width_px) * v.m_per_px;
+  v.cam_y_m = cy + (plot_cy - 0.5 * params.height_px) * v.m_per_px;
+  return s;
+}
+
+/// Vertices of a marker: a disc (many sides) or an axis-aligned square (4 sides).
+std::vector<Eigen::Vector2d>
+markerPolygon(const Eigen::Vector3d& centre, double radius_m, bool square)
+{
+  std::vector<Eigen::Vector2d> poly;
+  const int sides = square ? 4 : 40;
+  const double start = square ? M_PI / 4.0 : 0.0;
+  const double r = square ? radius_m * std::sqrt(2.0) : radius_m;
+  for (int i = 0; i < sides; ++i) {
+    const double a = start + 2.0 * M_PI * i / sides;
+    poly.emplace_back(centre.x() + r * std::cos(a), centre.y() + r * std::sin(a));
+  }
+  return poly;
+}
+
+
+
+// ---------------------------------------------------------------------------
+// OpenCV rasterization of the scene (the fallback) and the overlays (both backends).
+// ---------------------------------------------------------------------------
+
+constexpr int kShift = 4; // sub-pixel bits for cv drawing
+constexpr double kShiftScale = 1 << kShift;
+
+cv::Point
+fixedPoint(const cv::Point2d& p)
+{
+  return {static_cast<int>(std::lround(p.x * kShiftScale)),
+          static_cast<int>(std::lround(p.y * kShiftScale))};
+}
+
+void
+drawPolyline(cv::Mat& img,
+             const TopDownView& v,
+             const std::vector<Eigen::Vector3d>& line,
+             const RgbColour& colour,
+             float width_px)
+{
+  if (line.size() < 2)
+    return;
+  std::vector<cv::Point> pts;
+  pts.reserve(line.size());
+  for (const auto& p : line)
+    pts.push_back(fixedPoint(v.toPixel(p.x(), p.y())));
+  cv::polylines(img,
+                pts,
+                false,
+                toBgr(colour),
+                std::max(1, static_cast<int>(std::lround(width_px))),
+                cv::LINE_AA,
+                kShift);
+}
+
+void
+drawMarker(cv::Mat& img,
+           const TopDownView& v,
+           const Eigen::Vector3d& centre,
+           double radius_px,
+           bool square,
+           const RgbColour& fill,
+           double scale)
+{
+  std::vector<cv::Point> pts;
+  for (const auto& q : markerPolygon(centre, radius_px * v.m_per_px, square))
+    pts.push_back(fixedPoint(v.toPixel(q.x(), q.y())));
+  cv::fillPoly(
+      img, std::vector<std::vector<cv::Point>>{pts}, toBgr(fill), cv::LINE_AA, kShift);
+  cv::polylines(img,
+                pts,
+                true,
+                toBgr(kMarkerOutline),
+                std::max(1, static_cast<int>(std::lround(2.0 * scale))),
+                cv::LINE_AA,
+                kShift);
+}
+
+cv::Mat
+rasterizeScene(const Scene& s, const MapRenderParams& params)
+{
+  const TopDownView& v = s.view;
+  cv::Mat img(v.height_px, v.width_px, CV_8UC3, toBgr(params.background));
+
+  // Points as squares of point_size_px, like VTK's point sprites.
+  const int size = std::max(1, static_cast<int>(std::lround(params.point_size_px)));
+  for (std::size_t i = 0; i < s.points.size(); ++i) {
+    const cv::Point2d c = v.toPixel(s.points[i].x(), s.points[i].y());
+    const int u0 = static_cast<int>(std::floor(c.x + 0.5 - 0.5 * size + 0.5));
+    const int v0 = static_cast<int>(std::floor(c.y + 0.5 - 0.5 * size + 0.5));
+    for (int row = std::max(0, v0); row < std::min(img.rows, v0 + size); ++row) {
+      auto* px = img.ptr<cv::Vec3b>(row);
+      for (int col = std::max(0, u0); col < std::min(img.cols, u0 + size); ++col)
+        px[col] = s.point_bgr[i];
+    }
+  }
+  drawPolyline(
+      img, v, s.ground_truth, params.ground_truth_colour, params.ground_truth_width_px);
+  drawPolyline(
+      img, v, s.trajectory, params.trajectory_colour, params.trajectory_width_px);
+  for (const auto& e : s.loop_edges)
+    drawPolyline(
+        img, v, {e.first, e.second}, params.loop_edge_colour, params.loop_edge_width_px);
+  if (params.draw_start_end_markers && !s.trajectory.empty()) {
+    drawMarker(img,
+               v,
+               s.trajectory.back(),
+               params.marker_size_px,
+               true,
+               kEndColour,
+               s.layout.scale);
+    drawMarker(img,
+               v,
+               s.trajectory.front(),
+               params.marker_size_px,
+               false,
+               kStartColour,
+               s.layout.scale);
+  }
+  return img;
+}
+
+constexpr int kFont = cv::FONT_HERSHEY_DUPLEX;
+
+/// Text with its baseline-left corner at \a org; returns its width [px].
+int
+drawText(cv::Mat& img,
+         const std::string& text,
+         cv::Point org,
+         double font_scale,
+         const cv::Scalar& colour,
+         int thickness = 1)
+{
+  cv::putText(img, text, org, kFont, font_scale, colour, thickness, cv::LINE_AA);
+  int baseline = 0;
+  return cv::getTextSize(text, kFont, font_scale, thickness, &baseline).width;
+}
+
+int
+textWidth(const std::string& text, double font_scale, int thickness = 1)
+{
+  int baseline = 0;
+  return cv::getTextSize(text, kFont, font_scale, thickness, &baseline).width;
+}
+
+std::string
+formatNumber(double value, int decimals)
+{
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "%.*f", decimals, value);
+  if (std::strcmp(buf, "-0") == 0 || (std::strncmp(buf, "-0.", 3) == 0 &&
+                                      std::strspn(buf + 3, "0") == std::strlen(buf + 3)))
+    return buf + 1; // no "-0.0"
+  return buf;
+}
+
+/// 1, 2 or 5 times a power of ten, not above \a max_value.
+double
+niceLength(double max_value)
+{
+  const double p = std::pow(10.0, std::floor(std::log10(max_value)));
+  for (double m : {5.0, 2.0, 1.0})
+    if (m * p <= max_value)
+      return m * p;
+  return p;
+}
+
+void
+drawOverlays(cv::Mat& img,
+             const Scene& s,
+             const MapRenderParams& params,
+             const std::string& title,
+             const std::string& backend)
+{
+  const Layout& l = s.layout;
+  const double k = l.scale;
+  const auto& bg = params.background;
+  const bool dark_bg = 0.299 * bg.r + 0.587 * bg.g + 0.114 * bg.b < 128.0;
+  const cv::Scalar ink = dark_bg ? cv::Scalar(235, 235, 235) : cv::Scalar(25, 25, 25);
+  const cv::Scalar faint =
+      dark_bg ? cv::Scalar(150, 150, 150) : cv::Scalar(110, 110, 110);
+  const int thin = std::max(1, static_cast<int>(std::lround(k)));
+  const int W = img.cols, H = img.rows;
+
+  // Title band.
+  const std::string heading = title.empty() ? std::string("pcl_rast map") : title;
+  drawText(img,
+           heading,
+           {static_cast<int>(l.margin_px), static_cast<int>(44 * k)},
+           1.15 * k,
+           ink,
+           std::max(1, static_cast<int>(std::lround(1.6 * k))));
+  const double width_m = s.view.plot_px.width * s.view.m_per_px;
+  const double height_m = s.view.plot_px.height * s.view.m_per_px;
+  std::ostringstream sub;
+  sub << s.map_points_total << " map points, " << s.trajectory.size() << " poses, path "
+      << formatNumber(s.path_length_m, 1) << " m, " << s.loop_edges.size()
+      << (s.loop_edges.size() == 1 ? " loop closure" : " loop closures")
+      << " | top-down orthographic view, " << formatNumber(width_m, 0) << " x "
+      << formatNumber(height_m, 0) << " m";
+  drawText(img,
+           sub.str(),
+           {static_cast<int>(l.margin_px), static_cast<int>(72 * k)},
+           0.55 * k,
+           faint,
+           thin);
+
+  // Colour bar on the right.
+  if (params.draw_colour_bar) {
+    const int bar_w = static_cast<int>(26 * k);
+    const int bar_x = W - static_cast<int>(l.right_band_px) + static_cast<int>(18 * k);
+    const int bar_top = static_cast<int>(s.view.plot_px.y + 40 * k);
+    const int bar_h = static_cast<int>(std::min(s.view.plot_px.height * 0.6, 520.0 * k));
+    drawText(img,
+             s.value_label,
+             {bar_x, bar_top - static_cast<int>(14 * k)},
+             0.6 * k,
+             ink,
+             thin);
+    for (int row = 0; row < bar_h; ++row) {
+      const int idx = static_cast<int>(
+          std::lround(255.0 * (bar_h - 1 - row) / std::max(1, bar_h - 1)));
+      cv::line(img,
+               {bar_x, bar_top + row},
+               {bar_x + bar_w - 1, bar_top + row},
+               cv::Scalar(s.lut_bgr[idx][0], s.lut_bgr[idx][1], s.lut_bgr[idx][2]),
+               1);
+    }
+    cv::rectangle(
+        img, {bar_x - 1, bar_top - 1}, {bar_x + bar_w, bar_top + bar_h}, ink, 1);
+    const double range = s.value_high - s.value_low;
+    const int decimals = range >= 20.0 ? 0 : (range >= 2.0 ? 1 : 2);
+    const int ticks = 5;
+    for (int t = 0; t < ticks; ++t) {
+      const double f = static_cast<double>(t) / (ticks - 1);
+      const int y = bar_top + static_cast<int>(std::lround((1.0 - f) * (bar_h - 1)));
+      cv::line(img,
+               {bar_x + bar_w, y},
+               {bar_x + bar_w + static_cast<int>(6 * k), y},
+               ink,
+               thin);
+      drawText(img,
+               formatNumber(s.value_low + f * range, decimals),
+               {bar_x + bar_w + static_cast<int>(10 * k), y + static_cast<int>(6 * k)},
+               0.55 * k,
+               ink,
+               thin);
+    }
+  }
+
+  // Bottom band: scale bar, line legend, backend tag.
+  if (params.draw_scale_bar) {
+    const int base_y = H - static_cast<int>(26 * k);
+    int x = static_cast<int>(l.margin_px);
+    const double bar_m = niceLength(0.2 * width_m);
+    const int bar_px = static_cast<int>(std::lround(bar_m / s.view.m_per_px));
+    const int tick = static_cast<int>(7 * k);
+    const int bar_thick = std::max(2, static_cast<int>(std::lround(3 * k)));
+    cv::line(img, {x, base_y}, {x + bar_px, base_y}, ink, bar_thick);
+    cv::line(img, {x, base_y - tick}, {x, base_y + tick}, ink, thin + 1);
+    cv::line(
+        img, {x + bar_px, base_y - tick}, {x + bar_px, base_y + tick}, ink, thin + 1);
+    const std::string bar_text =
+        formatNumber(bar_m, bar_m >= 1.0 ? 0 : (bar_m >= 0.1 ? 1 : 2)) + " m";
+    drawText(img,
+             bar_text,
+             {x + bar_px / 2 - textWidth(bar_text, 0.6 * k, thin) / 2,
+              base_y - static_cast<int>(12 * k)},
+             0.6 * k,
+             ink,
+             thin);
+    x += bar_px + static_cast<int>(40 * k);
+
+    const double fs = 0.55 * k;
+    const int sample = static_cast<int>(34 * k);
+    const int text_y = base_y + static_cast<int>(6 * k);
+    auto legend_line = [&](const RgbColour& c, float width, const std::string& text) {
+      cv::line(img,
+               {x, base_y},
+               {x + sample, base_y},
+               toBgr(c),
+               std::max(1, static_cast<int>(std::lround(width))),
+               cv::LINE_AA);
+      x += sample + static_cast<int>(8 * k);
+      x += drawText(img, text, {x, text_y}, fs, ink, thin) + static_cast<int>(26 * k);
+    };
+    auto legend_marker = [&](bool square, const RgbColour& c, const std::string& text) {
+      const double r = params.marker_size_px;
+      const Eigen::Vector2d centre(x + r, base_y);
+      std::vector<cv::Point> pts;
+      const int sides = square ? 4 : 40;
+      for (int i = 0; i < sides; ++i) {
+        const double a = (square ? M_PI / 4.0 : 0.0) + 2.0 * M_PI * i / sides;
+        const double rr = square ? r * std::sqrt(2.0) : r;
+        pts.push_back(
+            fixedPoint({centre.x() + rr * std::cos(a), centre.y() + rr * std::sin(a)}));
+      }
+      cv::fillPoly(
+          img, std::vector<std::vector<cv::Point>>{pts}, toBgr(c), cv::LINE_AA, kShift);
+      cv::polylines(img, pts, true, ink, 1, cv::LINE_AA, kShift);
+      x += static_cast<int>(2 * r + 8 * k);
+      x += drawText(img, text, {x, text_y}, fs, ink, thin) + static_cast<int>(26 * k);
+    };
+    if (!s.trajectory.empty())
+      legend_line(params.trajectory_colour, params.trajectory_width_px, "trajectory");
+    if (!s.ground_truth.empty())
+      legend_line(
+          params.ground_truth_colour, params.ground_truth_width_px, "ground truth");
+    if (!s.loop_edges.empty())
+      legend_line(params.loop_edge_colour, params.loop_edge_width_px, "loop closure");
+    if (params.draw_start_end_markers && !s.trajectory.empty()) {
+      legend_marker(false, kStartColour, "start");
+      legend_marker(true, kEndColour, "end");
+    }
+    const std::string tag = "rendered by " + backend;
+    drawText(img,
+             tag,
+             {W - static_cast<int>(l.margin_px) - textWidth(tag, 0.45 * k, thin), text_y},
+             0.45 * k,
+             faint,
+             thin);
+  }
+}
+
+/// Write \a img to \a path through a temporary file in the same folder and a rename.
+bool
+writePngAtomically(const cv::Mat& img, const std::string& path, std::string* why)
+{
+  static std::atomic<int> counter{0};
+  const std::filesystem::path target(path);
+  const std::filesystem::path tmp =
+      target.parent_path() /
+      ("." + target.filename().string() + ".tmp-" + std::to_string(::getpid()) + "-" +
+       std::to_string(counter++) + ".png");
+  bool written = false;
+  try {
+    written = cv::imwrite(tmp.string(), img);
+  } catch (const cv::Exception& e) {
+    *why = "cannot write '" + tmp.string() + "': " + e.what();
+  }
+  if (!written) {
+    if (why->empty())
+      *why = "cannot write '" + tmp.string() + "' (missing folder or no permission?)";
+    std::error_code ignored;
+    std::filesystem::remove(tmp, ignored);
+    return false;
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, target, ec);
+  if (ec) {
+    *why = "cannot rename '" + tmp.string() + "' to '" + path + "': " + ec.message();
+    std::filesystem::remove(tmp, ec);
+    return false;
+  }
+  return true;
+}
+
+} // namespace render_detail
+} // namespace rast
+} // namespace pcl
