@@ -126,6 +126,8 @@ RasterGrid::setParams(const RangeRasterParams& params)
   if (!params.isValid(&why))
     throw std::invalid_argument("RangeRasterImage::setParams: " + why);
   params_ = params;
+  width_ = params.width();
+  height_ = params.height();
   computed_ = false;
 }
 
@@ -178,39 +180,42 @@ RasterGrid::rasterize(const float* xyz,
   auto pointAt = [&](std::size_t i) {
     return reinterpret_cast<const float*>(bytes + i * stride_bytes);
   };
-  const std::size_t count = indices ? indices->size() : num_points;
-  auto pointIndex = [&](std::size_t k) -> std::size_t {
-    if (!indices)
-      return k;
-    const auto i = (*indices)[k];
-    if (i < 0 || static_cast<std::size_t>(i) >= num_points)
-      throw std::out_of_range("RangeRasterImage::compute: index " + std::to_string(i) +
-                              " outside the cloud of " + std::to_string(num_points) +
-                              " points");
-    return static_cast<std::size_t>(i);
+  if (indices)
+    for (const auto i : *indices)
+      if (i < 0 || static_cast<std::size_t>(i) >= num_points)
+        throw std::out_of_range("RangeRasterImage::compute: index " + std::to_string(i) +
+                                " outside the cloud of " + std::to_string(num_points) +
+                                " points");
+  // Every point (or every indexed one) through \a project: two plain loops, so the
+  // common case without indices has no per-point branch.
+  auto forEachPoint = [&](auto&& project) {
+    if (indices)
+      for (const auto i : *indices)
+        project(static_cast<std::size_t>(i));
+    else
+      for (std::size_t i = 0; i < num_points; ++i)
+        project(i);
   };
   if (params_.projection == RasterProjection::kOrthographic) {
     // projectToRaster's bird's-eye view, with the parameters hoisted out of the loop.
     const double half_extent = params_.orthographic.half_extent_m;
     const double resolution = params_.orthographic.resolution_m;
-    for (std::size_t k = 0; k < count; ++k) {
-      const std::size_t i = pointIndex(k);
+    forEachPoint([&](std::size_t i) {
       const float* p = pointAt(i);
       if (!(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2])))
-        continue;
+        return;
       const float u = static_cast<float>((half_extent - p[1]) / resolution - 0.5);
       const float v = static_cast<float>((half_extent - p[0]) / resolution - 0.5);
       keep(i, u, v, p[2]);
-    }
+    });
   }
   else {
     Eigen::Vector2f uv;
-    for (std::size_t k = 0; k < count; ++k) {
-      const std::size_t i = pointIndex(k);
+    forEachPoint([&](std::size_t i) {
       const Eigen::Vector3f p = Eigen::Map<const Eigen::Vector3f>(pointAt(i));
       if (projectToRaster(params_, p, uv))
         keep(i, uv.x(), uv.y(), p.z());
-    }
+    });
   }
 
   // Gray values of the occupied pixels (empty ones stay 0 with a NaN height).

@@ -185,12 +185,12 @@ public:
   int
   width() const
   {
-    return params_.width();
+    return width_;
   }
   int
   height() const
   {
-    return params_.height();
+    return height_;
   }
   /// \brief Number of input points that fell inside the image.
   std::size_t
@@ -231,6 +231,8 @@ private:
   };
 
   RangeRasterParams params_;
+  int width_ = params_.width();   ///< params_.width(), cached: pixel lookups use it
+  int height_ = params_.height(); ///< params_.height(), cached
   std::shared_ptr<Buffers> buffers_;
   std::size_t num_projected_ = 0;
   std::size_t num_occupied_ = 0;
