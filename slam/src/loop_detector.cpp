@@ -160,6 +160,241 @@ cropped(const pcl::PointCloud<pcl::PointXYZI>& cloud, double voxel_m, double rad
 
 constexpr double kDenseResolutionM = 0.01; // int16: +-327 m, far beyond the crop radius
 
+/// Steps 1-3 of a verification: the matches and the first RANSAC estimate.
+struct FirstEstimate
+{
+  pcl::Correspondences matches;
+  RigidRansacResult ransac;
+  RigidRansacParams ransac_params; ///< params_.ransac with min_initial_inliers
+};
+
+/// Step 4: the guided matches and their RANSAC.
+struct GuidedEstimate
+{
+  pcl::Correspondences matches;
+  RigidRansacResult ransac;
+};
+
+/// Steps 1-3: ORB matches with the ratio test (paper), seeded RANSAC on them (paper),
+/// and the inlier ratio: in a repetitive scene many matches agree with no single
+/// motion. When that fails, the same under the odometry guess (distance candidates):
+/// the gate, not the ratio test, keeps the matches apart; RANSAC sorts out the nearest
+/// descriptors. Returns why the pair is rejected, or nothing.
+std::string
+firstEstimate(const LoopDetectorParams& params,
+              const KeyFrame& query,
+              const KeyFrame& candidate,
+              const Pose3d& T_candidate_query_guess,
+              const GuessTolerance& tolerance,
+              LoopVerification& v,
+              FirstEstimate& first)
+{
+  pcl::Correspondences& matches = first.matches;
+  RigidRansacResult& ransac = first.ransac;
+  matches = matchHamming(query.features, candidate.features, params.matching);
+  v.num_matches = static_cast<int>(matches.size());
+  first.ransac_params = params.ransac;
+  first.ransac_params.min_inliers = params.min_initial_inliers;
+  std::string failure;
+  if (v.num_matches < params.min_initial_inliers) {
+    failure = "too few matches: " + std::to_string(v.num_matches) + " < " +
+              std::to_string(params.min_initial_inliers);
+  }
+  else {
+    ransac = estimateRigidRansac(
+        query.features.points, candidate.features.points, matches, first.ransac_params);
+    v.num_initial_inliers = static_cast<int>(ransac.inlier_indices.size());
+    v.inlier_ratio = static_cast<double>(v.num_initial_inliers) / v.num_matches;
+    v.T_candidate_query = ransac.T_target_source;
+    if (!ransac.success)
+      failure = "RANSAC: " + ransac.message;
+    else if (v.inlier_ratio < params.min_inlier_ratio)
+      failure = format("inlier ratio %.2f < %.2f", v.inlier_ratio, params.min_inlier_ratio);
+  }
+  if (failure.empty())
+    return {};
+  const double gate = std::min(tolerance.translation_m, params.guess_gate_max_m);
+  if (!(gate > 0.0))
+    return failure;
+  HammingMatchParams gated = params.matching;
+  gated.ratio = 1.0;
+  gated.mutual_check = false;
+  gated.spatial_gate_radius_m = gate;
+  matches = matchHamming(query.features, candidate.features, gated, T_candidate_query_guess);
+  ransac = matches.size() >= 3 ? estimateRigidRansac(query.features.points,
+                                                      candidate.features.points,
+                                                      matches,
+                                                      first.ransac_params)
+                               : RigidRansacResult();
+  if (!ransac.success)
+    return failure + "; under the odometry guess: " +
+           std::to_string(ransac.inlier_indices.size()) + " RANSAC inliers of " +
+           std::to_string(matches.size()) + " matches";
+  v.from_guess = true;
+  v.num_matches = static_cast<int>(matches.size());
+  v.num_initial_inliers = static_cast<int>(ransac.inlier_indices.size());
+  v.inlier_ratio = static_cast<double>(v.num_initial_inliers) / v.num_matches;
+  v.T_candidate_query = ransac.T_target_source;
+  return {};
+}
+
+/// Step 4: guided matching from the first estimate (the ratio test over the whole scan
+/// drops most true matches between distant viewpoints), then RANSAC again with the
+/// paper's minimum number of inliers.
+std::string
+guidedEstimate(const LoopDetectorParams& params,
+               const KeyFrame& query,
+               const KeyFrame& candidate,
+               const FirstEstimate& first,
+               LoopVerification& v,
+               GuidedEstimate& guided)
+{
+  HammingMatchParams guided_params = params.matching;
+  guided_params.ratio = std::max(guided_params.ratio, 0.9);
+  guided_params.spatial_gate_radius_m = params.guided_radius_m;
+  if (v.from_guess) {
+    // Descriptors that failed the ratio test globally fail it within the gate too.
+    guided_params.ratio = 1.0;
+    guided_params.mutual_check = false;
+  }
+  guided.matches = matchHamming(
+      query.features, candidate.features, guided_params, first.ransac.T_target_source);
+  v.num_guided_matches = static_cast<int>(guided.matches.size());
+  RigidRansacParams final_params = params.ransac;
+  const int needed = v.from_guess ? params.min_guess_inliers : params.min_inliers;
+  final_params.min_inliers = needed;
+  guided.ransac = static_cast<int>(guided.matches.size()) >= needed
+                      ? estimateRigidRansac(query.features.points,
+                                            candidate.features.points,
+                                            guided.matches,
+                                            final_params)
+                      : RigidRansacResult();
+  v.num_inliers = static_cast<int>(guided.ransac.inlier_indices.size());
+  v.inlier_rmse_m = guided.ransac.inlier_rmse_m;
+  if (!guided.ransac.success || v.num_inliers < needed)
+    return "guided matching: " + std::to_string(v.num_inliers) + " inliers of " +
+           std::to_string(v.num_guided_matches) + " matches < " + std::to_string(needed);
+  v.T_candidate_query = guided.ransac.T_target_source;
+  return {};
+}
+
+/// Step 5: spatial spread of the inliers: not all on one object.
+std::string
+checkSpread(const LoopDetectorParams& params,
+            const KeyFrame& query,
+            const GuidedEstimate& guided,
+            LoopVerification& v)
+{
+  inlierSpread(query.features.points,
+               guided.matches,
+               guided.ransac.inlier_indices,
+               params.spread_cell_size_m,
+               v.inlier_cells,
+               v.inlier_spread_m);
+  if (v.inlier_cells < params.min_inlier_cells)
+    return "inliers in " + std::to_string(v.inlier_cells) + " cells < " +
+           std::to_string(params.min_inlier_cells);
+  if (v.inlier_spread_m < params.min_inlier_spread_m)
+    return format(
+        "inlier spread %.2f m < %.2f m", v.inlier_spread_m, params.min_inlier_spread_m);
+  return {};
+}
+
+/// Step 6: uniqueness: a second, different motion explaining many outliers of the
+/// first RANSAC means the scene repeats (a row of equal buildings): maybe the wrong copy.
+std::string
+checkUniqueness(const LoopDetectorParams& params,
+                const KeyFrame& query,
+                const KeyFrame& candidate,
+                const FirstEstimate& first,
+                LoopVerification& v)
+{
+  if (!(params.max_second_model_ratio < 1.0))
+    return {};
+  const int needed = std::max(
+      params.min_initial_inliers,
+      static_cast<int>(std::ceil(params.max_second_model_ratio * v.num_initial_inliers)));
+  pcl::Correspondences rest;
+  std::size_t k = 0;
+  const auto& inliers = first.ransac.inlier_indices;
+  for (std::size_t m = 0; m < first.matches.size(); ++m) {
+    if (k < inliers.size() && inliers[k] == static_cast<int>(m)) {
+      ++k;
+      continue;
+    }
+    rest.push_back(first.matches[m]);
+  }
+  if (static_cast<int>(rest.size()) < needed)
+    return {};
+  RigidRansacParams second_params = first.ransac_params;
+  second_params.min_inliers = needed;
+  const RigidRansacResult second = estimateRigidRansac(
+      query.features.points, candidate.features.points, rest, second_params);
+  const Pose3d delta = first.ransac.T_target_source.inverse() * second.T_target_source;
+  if (second.success && (delta.translation().norm() > 2.0 || rotationDeg(delta) > 10.0)) {
+    v.second_model_inliers = static_cast<int>(second.inlier_indices.size());
+    return "ambiguous: a second motion has " + std::to_string(v.second_model_inliers) +
+           " inliers vs " + std::to_string(v.num_initial_inliers);
+  }
+  return {};
+}
+
+/// Step 7: consistency with the odometry estimate (distance candidates).
+std::string
+checkOdometry(const Pose3d& T_candidate_query_guess,
+              const GuessTolerance& tolerance,
+              const LoopVerification& v)
+{
+  const Pose3d deviation = T_candidate_query_guess.inverse() * v.T_candidate_query;
+  const double dev_m = deviation.translation().norm();
+  const double dev_deg = rotationDeg(deviation);
+  if ((tolerance.translation_m >= 0.0 && dev_m > tolerance.translation_m) ||
+      (tolerance.rotation_deg >= 0.0 && dev_deg > tolerance.rotation_deg))
+    return format("inconsistent with odometry: %.2f m / %.1f deg away (allowed "
+                  "%.2f m / %.1f deg)",
+                  dev_m,
+                  dev_deg,
+                  tolerance.translation_m,
+                  tolerance.rotation_deg);
+  return {};
+}
+
+/// Step 8: self-similarity: if query or candidate matches itself under a shift (a
+/// street of equal blocks), the loop could be any copy; only a tight odometry guess
+/// decides.
+std::string
+checkSelfSimilarity(const LoopDetectorParams& params,
+                    const KeyFrame& query,
+                    const KeyFrame& candidate,
+                    const GuessTolerance& tolerance,
+                    LoopVerification& v)
+{
+  if (!(params.max_self_similarity_ratio < 1.0))
+    return {};
+  RigidRansacParams self_params = params.ransac;
+  self_params.min_inliers = std::max(
+      params.min_initial_inliers,
+      static_cast<int>(std::ceil(params.max_self_similarity_ratio * v.num_inliers)));
+  for (const KeyFrame* kf : {&candidate, &query}) {
+    double shift_m = 0.0;
+    const int n =
+        selfSimilarity(kf->features, self_params, params.retrieval_max_hamming, 3.0, shift_m);
+    if (n > v.self_similar_inliers) {
+      v.self_similar_inliers = n;
+      v.self_similar_shift_m = shift_m;
+    }
+  }
+  if (v.self_similar_inliers > 0 &&
+      !(tolerance.translation_m >= 0.0 &&
+        tolerance.translation_m < 0.5 * v.self_similar_shift_m))
+    return format("repetitive scene: a %.1f m self-shift has %.0f inliers (loop %.0f) "
+                  "and no odometry guess tighter than half of it",
+                  v.self_similar_shift_m,
+                  v.self_similar_inliers,
+                  v.num_inliers);
+  return {};
+}
+
 } // namespace
 
 /// The dense check's target points of a key-frame, quantized (6 bytes a point).
@@ -819,241 +1054,30 @@ LoopDetector::verifyPair(const KeyFrame& query,
     v.verify_ms = msSince(t0);
     return v;
   };
-  const int min_inliers = params_.min_inliers;
-  if (static_cast<int>(query.features.size()) < min_inliers ||
-      static_cast<int>(candidate.features.size()) < min_inliers)
+  if (static_cast<int>(query.features.size()) < params_.min_inliers ||
+      static_cast<int>(candidate.features.size()) < params_.min_inliers)
     return reject("too few features: " + std::to_string(query.features.size()) + " / " +
                   std::to_string(candidate.features.size()));
 
-  // 1. ORB matching with the ratio test (paper), query -> candidate.
-  pcl::Correspondences matches =
-      matchHamming(query.features, candidate.features, params_.matching);
-  v.num_matches = static_cast<int>(matches.size());
-  RigidRansacParams ransac_params = params_.ransac;
-  ransac_params.min_inliers = params_.min_initial_inliers;
-  RigidRansacResult ransac;
-  std::string failure;
-  if (v.num_matches < params_.min_initial_inliers) {
-    failure = "too few matches: " + std::to_string(v.num_matches) + " < " +
-              std::to_string(params_.min_initial_inliers);
-  }
-  else {
-    // 2. Seeded RANSAC on them (paper), a first estimate.
-    ransac = estimateRigidRansac(
-        query.features.points, candidate.features.points, matches, ransac_params);
-    v.num_initial_inliers = static_cast<int>(ransac.inlier_indices.size());
-    v.inlier_ratio = static_cast<double>(v.num_initial_inliers) / v.num_matches;
-    v.T_candidate_query = ransac.T_target_source;
-    if (!ransac.success)
-      failure = "RANSAC: " + ransac.message;
-    // 3. Inlier ratio: in a repetitive scene many matches agree with no single motion.
-    else if (v.inlier_ratio < params_.min_inlier_ratio)
-      failure = format("inlier ratio %.2f < %.2f", v.inlier_ratio, params_.min_inlier_ratio);
-  }
-  if (!failure.empty()) {
-    // 1-3 again under the odometry guess (distance candidates): the gate, not the
-    // ratio test, keeps the matches apart; RANSAC sorts out the nearest descriptors.
-    const double gate = std::min(tolerance.translation_m, params_.guess_gate_max_m);
-    if (!(gate > 0.0))
-      return reject(failure);
-    HammingMatchParams gated = params_.matching;
-    gated.ratio = 1.0;
-    gated.mutual_check = false;
-    gated.spatial_gate_radius_m = gate;
-    matches = matchHamming(query.features, candidate.features, gated, T_candidate_query_guess);
-    ransac = matches.size() >= 3 ? estimateRigidRansac(query.features.points,
-                                                        candidate.features.points,
-                                                        matches,
-                                                        ransac_params)
-                                 : RigidRansacResult();
-    if (!ransac.success)
-      return reject(failure + "; under the odometry guess: " +
-                    std::to_string(ransac.inlier_indices.size()) + " RANSAC inliers of " +
-                    std::to_string(matches.size()) + " matches");
-    v.from_guess = true;
-    v.num_matches = static_cast<int>(matches.size());
-    v.num_initial_inliers = static_cast<int>(ransac.inlier_indices.size());
-    v.inlier_ratio = static_cast<double>(v.num_initial_inliers) / v.num_matches;
-    v.T_candidate_query = ransac.T_target_source;
-  }
-
-  // 4. Guided matching from the first estimate (the ratio test over the whole scan
-  // drops most true matches between distant viewpoints), then RANSAC again with the
-  // paper's minimum number of inliers.
-  HammingMatchParams guided_params = params_.matching;
-  guided_params.ratio = std::max(guided_params.ratio, 0.9);
-  guided_params.spatial_gate_radius_m = params_.guided_radius_m;
-  if (v.from_guess) {
-    // Descriptors that failed the ratio test globally fail it within the gate too.
-    guided_params.ratio = 1.0;
-    guided_params.mutual_check = false;
-  }
-  const pcl::Correspondences guided = matchHamming(
-      query.features, candidate.features, guided_params, ransac.T_target_source);
-  v.num_guided_matches = static_cast<int>(guided.size());
-  RigidRansacParams final_params = params_.ransac;
-  const int needed = v.from_guess ? params_.min_guess_inliers : min_inliers;
-  final_params.min_inliers = needed;
-  const RigidRansacResult refined_ransac =
-      static_cast<int>(guided.size()) >= needed
-          ? estimateRigidRansac(
-                query.features.points, candidate.features.points, guided, final_params)
-          : RigidRansacResult();
-  v.num_inliers = static_cast<int>(refined_ransac.inlier_indices.size());
-  v.inlier_rmse_m = refined_ransac.inlier_rmse_m;
-  if (!refined_ransac.success || v.num_inliers < needed)
-    return reject("guided matching: " + std::to_string(v.num_inliers) + " inliers of " +
-                  std::to_string(v.num_guided_matches) + " matches < " +
-                  std::to_string(needed));
-  v.T_candidate_query = refined_ransac.T_target_source;
-
-  // 5. Spatial spread: not all on one object.
-  inlierSpread(query.features.points,
-               guided,
-               refined_ransac.inlier_indices,
-               params_.spread_cell_size_m,
-               v.inlier_cells,
-               v.inlier_spread_m);
-  if (v.inlier_cells < params_.min_inlier_cells)
-    return reject("inliers in " + std::to_string(v.inlier_cells) + " cells < " +
-                  std::to_string(params_.min_inlier_cells));
-  if (v.inlier_spread_m < params_.min_inlier_spread_m)
-    return reject(format(
-        "inlier spread %.2f m < %.2f m", v.inlier_spread_m, params_.min_inlier_spread_m));
-
-  // 6. Uniqueness: a second, different motion explaining many outliers of the first
-  // RANSAC means the scene repeats (a row of equal buildings): maybe the wrong copy.
-  if (params_.max_second_model_ratio < 1.0) {
-    const int needed =
-        std::max(params_.min_initial_inliers,
-                 static_cast<int>(
-                     std::ceil(params_.max_second_model_ratio * v.num_initial_inliers)));
-    pcl::Correspondences rest;
-    std::size_t k = 0;
-    for (std::size_t m = 0; m < matches.size(); ++m) {
-      if (k < ransac.inlier_indices.size() &&
-          ransac.inlier_indices[k] == static_cast<int>(m)) {
-        ++k;
-        continue;
-      }
-      rest.push_back(matches[m]);
-    }
-    if (static_cast<int>(rest.size()) >= needed) {
-      RigidRansacParams second_params = ransac_params;
-      second_params.min_inliers = needed;
-      const RigidRansacResult second = estimateRigidRansac(
-          query.features.points, candidate.features.points, rest, second_params);
-      const Pose3d delta = ransac.T_target_source.inverse() * second.T_target_source;
-      if (second.success &&
-          (delta.translation().norm() > 2.0 || rotationDeg(delta) > 10.0)) {
-        v.second_model_inliers = static_cast<int>(second.inlier_indices.size());
-        return reject("ambiguous: a second motion has " +
-                      std::to_string(v.second_model_inliers) + " inliers vs " +
-                      std::to_string(v.num_initial_inliers));
-      }
-    }
-  }
-
-  // 7. Consistency with the odometry estimate (distance candidates).
-  const Pose3d deviation = T_candidate_query_guess.inverse() * v.T_candidate_query;
-  const double dev_m = deviation.translation().norm();
-  const double dev_deg = rotationDeg(deviation);
-  if ((tolerance.translation_m >= 0.0 && dev_m > tolerance.translation_m) ||
-      (tolerance.rotation_deg >= 0.0 && dev_deg > tolerance.rotation_deg))
-    return reject(format("inconsistent with odometry: %.2f m / %.1f deg away (allowed "
-                         "%.2f m / %.1f deg)",
-                         dev_m,
-                         dev_deg,
-                         tolerance.translation_m,
-                         tolerance.rotation_deg));
-
-  // 8. Self-similarity: if query or candidate matches itself under a shift (a street
-  // of equal blocks), the loop could be any copy; only a tight odometry guess decides.
-  if (params_.max_self_similarity_ratio < 1.0) {
-    RigidRansacParams self_params = params_.ransac;
-    self_params.min_inliers = std::max(
-        params_.min_initial_inliers,
-        static_cast<int>(std::ceil(params_.max_self_similarity_ratio * v.num_inliers)));
-    for (const KeyFrame* kf : {&candidate, &query}) {
-      double shift_m = 0.0;
-      const int n = selfSimilarity(
-          kf->features, self_params, params_.retrieval_max_hamming, 3.0, shift_m);
-      if (n > v.self_similar_inliers) {
-        v.self_similar_inliers = n;
-        v.self_similar_shift_m = shift_m;
-      }
-    }
-    if (v.self_similar_inliers > 0 &&
-        !(tolerance.translation_m >= 0.0 &&
-          tolerance.translation_m < 0.5 * v.self_similar_shift_m))
-      return reject(
-          format("repetitive scene: a %.1f m self-shift has %.0f inliers (loop %.0f) "
-                 "and no odometry guess tighter than half of it",
-                 v.self_similar_shift_m,
-                 v.self_similar_inliers,
-                 v.num_inliers));
-  }
-
-  // 9. Dense check: point-to-plane refinement of the query's planar points on the
-  // candidate's, then the share of query structure (walls, not ground) that fits.
-  if (params_.dense_check) {
-    if (!query.cloud || (!candidate.cloud && !(candidate_dense && !candidate_dense->empty())))
-      return reject("dense check: a key-frame has no cloud");
-    const PointToPlaneParams& dp = params_.dense;
-    PointToPlaneTarget target, query_planes;
-    PointToPlaneParams query_params = dp;
-    query_params.target_voxel_size_m = dp.source_voxel_size_m;
-    try {
-      target.build(candidate_dense && !candidate_dense->empty()
-                       ? decodeDense(*candidate_dense)
-                       : decodeDense(denseTarget(*candidate.cloud, params_)),
-                   dp);
-      query_planes.build(
-          cropped(*query.cloud, query_params.target_voxel_size_m, params_.dense_crop_radius_m),
-          query_params);
-    } catch (const std::invalid_argument& e) {
-      return reject(std::string("dense check: ") + e.what());
-    }
-    if (target.empty() || query_planes.empty())
-      return reject("dense check: no planar points");
-    const PointToPlaneResult refined =
-        refinePointToPlane(query_planes.points(), target, v.T_candidate_query, dp);
-    if (!refined.success)
-      return reject("dense check: " + refined.message);
-    const Pose3d& T = refined.T_target_source;
-    int structure = 0, paired = 0;
-    double sum_sq = 0.0;
-    const double cos_normal = std::cos(30.0 / kDegPerRad);
-    for (std::size_t i = 0; i < query_planes.size(); ++i) {
-      const Eigen::Vector3d& n = query_planes.normals()[i];
-      if (std::abs(n.z()) > 0.7) // ground, roofs: agree under any planar motion
-        continue;
-      ++structure;
-      const Eigen::Vector3d p = T * query_planes.points()[i];
-      const Eigen::Vector3d n_t = T.linear() * n;
-      Eigen::Vector3d q, n_q;
-      if (!target.nearest(p, 2.0 * params_.dense_inlier_distance_m, q, n_q))
-        continue;
-      const double r = n_q.dot(p - q);
-      if (std::abs(n_q.dot(n_t)) < cos_normal ||
-          std::abs(r) > params_.dense_inlier_distance_m)
-        continue;
-      ++paired;
-      sum_sq += r * r;
-    }
-    v.dense_overlap = structure > 0 ? static_cast<double>(paired) / structure : 0.0;
-    v.dense_rmse_m = paired > 0 ? std::sqrt(sum_sq / paired) : 0.0;
-    if (structure == 0 || v.dense_overlap < params_.min_dense_overlap)
-      return reject(format("dense overlap %.2f < %.2f (%.0f structure points)",
-                           v.dense_overlap,
-                           params_.min_dense_overlap,
-                           structure));
-    if (v.dense_rmse_m > params_.max_dense_rmse_m)
-      return reject(
-          format("dense rmse %.3f m > %.3f m", v.dense_rmse_m, params_.max_dense_rmse_m));
-    v.T_candidate_query = T;
-    refineAccepted(query, target, v);
-  }
+  // Each step either passes or says why the pair is rejected.
+  FirstEstimate first;
+  GuidedEstimate guided;
+  std::string why = firstEstimate(params_, query, candidate, T_candidate_query_guess,
+                                  tolerance, v, first);
+  if (why.empty())
+    why = guidedEstimate(params_, query, candidate, first, v, guided);
+  if (why.empty())
+    why = checkSpread(params_, query, guided, v);
+  if (why.empty())
+    why = checkUniqueness(params_, query, candidate, first, v);
+  if (why.empty())
+    why = checkOdometry(T_candidate_query_guess, tolerance, v);
+  if (why.empty())
+    why = checkSelfSimilarity(params_, query, candidate, tolerance, v);
+  if (why.empty() && params_.dense_check)
+    why = denseCheck(query, candidate, candidate_dense, v);
+  if (!why.empty())
+    return reject(why);
 
   v.accepted = true;
   v.verify_ms = msSince(t0);
@@ -1064,6 +1088,71 @@ LoopDetector::verifyPair(const KeyFrame& query,
              v.dense_overlap,
              v.dense_rmse_m);
   return v;
+}
+
+std::string
+LoopDetector::denseCheck(const KeyFrame& query,
+                         const KeyFrame& candidate,
+                         const std::vector<DensePoint>* candidate_dense,
+                         LoopVerification& v) const
+{
+  // 9. Dense check: point-to-plane refinement of the query's planar points on the
+  // candidate's, then the share of query structure (walls, not ground) that fits.
+  if (!query.cloud || (!candidate.cloud && !(candidate_dense && !candidate_dense->empty())))
+    return "dense check: a key-frame has no cloud";
+  const PointToPlaneParams& dp = params_.dense;
+  PointToPlaneTarget target, query_planes;
+  PointToPlaneParams query_params = dp;
+  query_params.target_voxel_size_m = dp.source_voxel_size_m;
+  try {
+    target.build(candidate_dense && !candidate_dense->empty()
+                     ? decodeDense(*candidate_dense)
+                     : decodeDense(denseTarget(*candidate.cloud, params_)),
+                 dp);
+    query_planes.build(
+        cropped(*query.cloud, query_params.target_voxel_size_m, params_.dense_crop_radius_m),
+        query_params);
+  } catch (const std::invalid_argument& e) {
+    return std::string("dense check: ") + e.what();
+  }
+  if (target.empty() || query_planes.empty())
+    return "dense check: no planar points";
+  const PointToPlaneResult refined =
+      refinePointToPlane(query_planes.points(), target, v.T_candidate_query, dp);
+  if (!refined.success)
+    return "dense check: " + refined.message;
+  const Pose3d& T = refined.T_target_source;
+  int structure = 0, paired = 0;
+  double sum_sq = 0.0;
+  const double cos_normal = std::cos(30.0 / kDegPerRad);
+  for (std::size_t i = 0; i < query_planes.size(); ++i) {
+    const Eigen::Vector3d& n = query_planes.normals()[i];
+    if (std::abs(n.z()) > 0.7) // ground, roofs: agree under any planar motion
+      continue;
+    ++structure;
+    const Eigen::Vector3d p = T * query_planes.points()[i];
+    const Eigen::Vector3d n_t = T.linear() * n;
+    Eigen::Vector3d q, n_q;
+    if (!target.nearest(p, 2.0 * params_.dense_inlier_distance_m, q, n_q))
+      continue;
+    const double r = n_q.dot(p - q);
+    if (std::abs(n_q.dot(n_t)) < cos_normal || std::abs(r) > params_.dense_inlier_distance_m)
+      continue;
+    ++paired;
+    sum_sq += r * r;
+  }
+  v.dense_overlap = structure > 0 ? static_cast<double>(paired) / structure : 0.0;
+  v.dense_rmse_m = paired > 0 ? std::sqrt(sum_sq / paired) : 0.0;
+  if (structure == 0 || v.dense_overlap < params_.min_dense_overlap)
+    return format("dense overlap %.2f < %.2f (%.0f structure points)",
+                  v.dense_overlap,
+                  params_.min_dense_overlap,
+                  structure);
+  if (v.dense_rmse_m > params_.max_dense_rmse_m)
+    return format("dense rmse %.3f m > %.3f m", v.dense_rmse_m, params_.max_dense_rmse_m);
+  v.T_candidate_query = T;
+  refineAccepted(query, target, v);
+  return {};
 }
 
 } // namespace rast

@@ -415,6 +415,12 @@ private:
                               const Pose3d& T_candidate_query_guess,
                               const GuessTolerance& tolerance,
                               const std::vector<DensePoint>* candidate_dense) const;
+  /// Step 9 of verifyPair: the point-to-plane check on the candidate's dense target;
+  /// returns why the pair is rejected, or nothing.
+  std::string denseCheck(const KeyFrame& query,
+                         const KeyFrame& candidate,
+                         const std::vector<DensePoint>* candidate_dense,
+                         LoopVerification& v) const;
   /// The final refinement of an accepted \a v on the candidate's dense \a target.
   void refineAccepted(const KeyFrame& query, const PointToPlaneTarget& target,
                       LoopVerification& v) const;
