@@ -141,12 +141,13 @@ struct Accuracy
   }
 };
 
-/// pcl_rast: seeded RANSAC with adaptive iterations and degenerate-sample checks, then
-/// weighted Umeyama on the inliers.
+/// Times \a estimate(k, pair, accuracy) over every pair of frames i, i + \a gap and
+/// reports the accuracy of the last pass.
+template <typename Estimate>
 void
-BM_RastRansac(benchmark::State& state)
+runOverPairs(benchmark::State& state, int gap, Estimate estimate)
 {
-  const auto& all = cases(static_cast<int>(state.range(0)));
+  const auto& all = cases(gap);
   if (all.empty()) {
     state.SkipWithError("../shared/data/kitti-raw-22 not found");
     return;
@@ -154,13 +155,25 @@ BM_RastRansac(benchmark::State& state)
   Accuracy accuracy;
   for (auto _ : state) {
     accuracy = Accuracy();
-    for (const auto& c : all) {
-      const auto r =
-          pcl::rast::estimateRigidRansac(c.source.points, c.target.points, *c.matches);
-      accuracy.add(r.T_target_source.matrix(), c.reference, r.inlier_indices.size());
-    }
+    for (std::size_t k = 0; k < all.size(); ++k)
+      estimate(k, all[k], accuracy);
   }
   accuracy.report(state);
+}
+
+/// pcl_rast: seeded RANSAC with adaptive iterations and degenerate-sample checks, then
+/// Umeyama on the inliers.
+void
+BM_RastRansac(benchmark::State& state)
+{
+  runOverPairs(
+      state,
+      static_cast<int>(state.range(0)),
+      [](std::size_t, const PairCase& c, Accuracy& accuracy) {
+        const auto r =
+            pcl::rast::estimateRigidRansac(c.source.points, c.target.points, *c.matches);
+        accuracy.add(r.T_target_source.matrix(), c.reference, r.inlier_indices.size());
+      });
 }
 
 /// PCL: CorrespondenceRejectorSampleConsensus (fixed iteration budget), then
@@ -168,47 +181,38 @@ BM_RastRansac(benchmark::State& state)
 void
 BM_PclRejectorSvd(benchmark::State& state)
 {
-  const auto& all = cases(static_cast<int>(state.range(0)));
-  if (all.empty()) {
-    state.SkipWithError("../shared/data/kitti-raw-22 not found");
-    return;
-  }
-  Accuracy accuracy;
-  for (auto _ : state) {
-    accuracy = Accuracy();
-    for (const auto& c : all) {
-      pcl::registration::CorrespondenceRejectorSampleConsensus<pcl::rast::ORBSignature256>
-          rejector;
-      rejector.setInputSource(c.source_cloud);
-      rejector.setInputTarget(c.target_cloud);
-      rejector.setInlierThreshold(0.5);
-      rejector.setMaximumIterations(static_cast<int>(state.range(1)));
-      rejector.setInputCorrespondences(c.matches);
-      pcl::Correspondences inliers;
-      rejector.getCorrespondences(inliers);
-      pcl::registration::TransformationEstimationSVD<pcl::rast::ORBSignature256,
-                                                     pcl::rast::ORBSignature256>
-          svd;
-      Eigen::Matrix4f T = Eigen::Matrix4f::Identity();
-      if (inliers.size() >= 3)
-        svd.estimateRigidTransformation(*c.source_cloud, *c.target_cloud, inliers, T);
-      accuracy.add(T.cast<double>(), c.reference, inliers.size());
-    }
-  }
-  accuracy.report(state);
+  const int max_iterations = static_cast<int>(state.range(1));
+  runOverPairs(
+      state,
+      static_cast<int>(state.range(0)),
+      [max_iterations](std::size_t, const PairCase& c, Accuracy& accuracy) {
+        pcl::registration::CorrespondenceRejectorSampleConsensus<
+            pcl::rast::ORBSignature256>
+            rejector;
+        rejector.setInputSource(c.source_cloud);
+        rejector.setInputTarget(c.target_cloud);
+        rejector.setInlierThreshold(0.5);
+        rejector.setMaximumIterations(max_iterations);
+        rejector.setInputCorrespondences(c.matches);
+        pcl::Correspondences inliers;
+        rejector.getCorrespondences(inliers);
+        pcl::registration::TransformationEstimationSVD<pcl::rast::ORBSignature256,
+                                                       pcl::rast::ORBSignature256>
+            svd;
+        Eigen::Matrix4f T = Eigen::Matrix4f::Identity();
+        if (inliers.size() >= 3)
+          svd.estimateRigidTransformation(*c.source_cloud, *c.target_cloud, inliers, T);
+        accuracy.add(T.cast<double>(), c.reference, inliers.size());
+      });
 }
 
-/// Least squares alone on the same inliers: pcl_rast's Umeyama and PCL's SVD.
+/// Least squares alone on the same inliers (pcl_rast's RANSAC inliers of each
+/// consecutive pair): pcl_rast's Umeyama (0) and PCL's SVD (1).
 void
 BM_LeastSquares(benchmark::State& state)
 {
-  const auto& all = cases(1);
-  if (all.empty()) {
-    state.SkipWithError("../shared/data/kitti-raw-22 not found");
-    return;
-  }
   std::vector<pcl::Correspondences> inliers;
-  for (const auto& c : all) {
+  for (const auto& c : cases(1)) {
     const auto r =
         pcl::rast::estimateRigidRansac(c.source.points, c.target.points, *c.matches);
     inliers.emplace_back();
@@ -216,28 +220,21 @@ BM_LeastSquares(benchmark::State& state)
       inliers.back().push_back((*c.matches)[k]);
   }
   const bool pcl_svd = state.range(0) == 1;
-  Accuracy accuracy;
-  for (auto _ : state) {
-    accuracy = Accuracy();
-    for (std::size_t k = 0; k < all.size(); ++k) {
-      const auto& c = all[k];
-      Eigen::Matrix4d T;
-      if (pcl_svd) {
-        pcl::registration::TransformationEstimationSVD<pcl::rast::ORBSignature256,
-                                                       pcl::rast::ORBSignature256>
-            svd;
-        Eigen::Matrix4f Tf;
-        svd.estimateRigidTransformation(*c.source_cloud, *c.target_cloud, inliers[k], Tf);
-        T = Tf.cast<double>();
-      } else {
-        T = pcl::rast::estimateRigidTransform(
-                c.source.points, c.target.points, inliers[k])
-                .T_target_source.matrix();
-      }
-      accuracy.add(T, c.reference, inliers[k].size());
+  runOverPairs(state, 1, [&](std::size_t k, const PairCase& c, Accuracy& accuracy) {
+    Eigen::Matrix4d T;
+    if (pcl_svd) {
+      pcl::registration::TransformationEstimationSVD<pcl::rast::ORBSignature256,
+                                                     pcl::rast::ORBSignature256>
+          svd;
+      Eigen::Matrix4f Tf;
+      svd.estimateRigidTransformation(*c.source_cloud, *c.target_cloud, inliers[k], Tf);
+      T = Tf.cast<double>();
+    } else {
+      T = pcl::rast::estimateRigidTransform(c.source.points, c.target.points, inliers[k])
+              .T_target_source.matrix();
     }
-  }
-  accuracy.report(state);
+    accuracy.add(T, c.reference, inliers[k].size());
+  });
 }
 
 } // namespace

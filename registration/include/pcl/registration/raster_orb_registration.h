@@ -75,9 +75,13 @@ public:
   /// \brief Counts, residual and message of the last align().
   const RegistrationResult& getResult() const { return result_; }
 
+  /// \brief A new target: its features and dense target are prepared on the next
+  /// align() and then reused while the target stays (many sources, one map).
+  void setInputTarget(const typename PointCloudTarget::ConstPtr& cloud) override;
+
   /// \brief The ORB features of the last align(): source, then target.
-  const RasterFeatureSet& getSourceFeatures() const { return source_features_; }
-  const RasterFeatureSet& getTargetFeatures() const { return target_features_; }
+  const RasterFeatureSet& getSourceFeatures() const { return *source_features_; }
+  const RasterFeatureSet& getTargetFeatures() const { return *target_features_; }
   /// \brief RANSAC inliers of the last align() (indices into the feature sets).
   const pcl::Correspondences& getFeatureInliers() const { return inliers_; }
 
@@ -100,8 +104,13 @@ private:
                        RasterFeatureSet& features);
 
   RasterORBRegistrationParams params_;
-  RasterFeatureSet source_features_;
-  RasterFeatureSet target_features_;
+  std::shared_ptr<RasterFeatureSet> source_features_ =
+      std::make_shared<RasterFeatureSet>();
+  std::shared_ptr<RasterFeatureSet> target_features_ =
+      std::make_shared<RasterFeatureSet>();
+  /// Matching, RANSAC and refinement; holds the prepared dense target between aligns.
+  CorrespondenceRigidRegistration registration_;
+  bool target_prepared_ = false; ///< target features and dense target are current
   pcl::Correspondences inliers_;
   RegistrationResult result_;
 };

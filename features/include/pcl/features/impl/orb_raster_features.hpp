@@ -66,6 +66,27 @@ OrbRasterFeatureEstimator<PointInT>::extract(
   result_.message = msg.str();
 }
 
+namespace detail {
+
+/// A raster keypoint lifted to its input point: x, y, z of the point, w = 1, and the
+/// keypoint fields (RasterFeaturePoint and ORBSignature256 alike).
+template <typename PointInT, typename FeaturePoint>
+void
+lift(const OrbRasterDetector::RasterKeypoint& kp,
+     const pcl::PointCloud<PointInT>& cloud,
+     FeaturePoint& point)
+{
+  point.getVector3fMap() = cloud[kp.index].getVector3fMap();
+  point.data[3] = 1.0f;
+  point.u = kp.u;
+  point.v = kp.v;
+  point.response = kp.response;
+  point.angle_deg = kp.angle_deg;
+  point.octave = kp.octave;
+}
+
+} // namespace detail
+
 template <typename PointInT>
 OrbRasterFeatureResult
 OrbRasterFeatureEstimator<PointInT>::compute(RasterFeatureSet& features)
@@ -78,12 +99,7 @@ OrbRasterFeatureEstimator<PointInT>::compute(RasterFeatureSet& features)
   features.descriptors.reserve(keypoints_.size());
   for (const auto& kp : keypoints_) {
     RasterFeaturePoint point;
-    point.getVector3fMap() = cloud[kp.index].getVector3fMap();
-    point.u = kp.u;
-    point.v = kp.v;
-    point.response = kp.response;
-    point.angle_deg = kp.angle_deg;
-    point.octave = kp.octave;
+    detail::lift(kp, cloud, point);
     features.points.push_back(point);
     features.descriptors.push_back(kp.descriptor);
   }
@@ -115,13 +131,7 @@ OrbRasterFeatureEstimator<PointInT>::detectKeypoints(PointCloudOut& output)
   for (std::size_t k = 0; k < keypoints_.size(); ++k) {
     const auto& kp = keypoints_[k];
     ORBSignature256& q = output[k];
-    q.getVector3fMap() = cloud[kp.index].getVector3fMap();
-    q.data[3] = 1.0f;
-    q.u = kp.u;
-    q.v = kp.v;
-    q.response = kp.response;
-    q.angle_deg = kp.angle_deg;
-    q.octave = kp.octave;
+    detail::lift(kp, cloud, q);
     std::copy(kp.descriptor.begin(), kp.descriptor.end(), q.descriptor);
     keypoints_indices_->indices[k] = kp.index;
   }

@@ -27,6 +27,17 @@ RasterORBRegistration<PointSource, PointTarget, Scalar>::setParams(
   if (!params.isValid(&why))
     throw std::invalid_argument("RasterORBRegistration::setParams: " + why);
   params_ = params;
+  registration_.setParams(params.registration);
+  target_prepared_ = false;
+}
+
+template <typename PointSource, typename PointTarget, typename Scalar>
+void
+RasterORBRegistration<PointSource, PointTarget, Scalar>::setInputTarget(
+    const typename PointCloudTarget::ConstPtr& cloud)
+{
+  Base::setInputTarget(cloud);
+  target_prepared_ = false;
 }
 
 template <typename PointSource, typename PointTarget, typename Scalar>
@@ -62,25 +73,26 @@ RasterORBRegistration<PointSource, PointTarget, Scalar>::computeTransformation(
 {
   // setIndices on the source restricts its features and its dense points, as in ICP.
   const bool source_indexed = indices_ && indices_->size() != input_->size();
+  source_features_ = std::make_shared<RasterFeatureSet>();
   extractFeatures<PointSource>(
-      input_, source_indexed ? indices_ : nullptr, source_features_);
-  extractFeatures<PointTarget>(target_, nullptr, target_features_);
-
+      input_, source_indexed ? indices_ : nullptr, *source_features_);
   // The dense refinement works on x, y, z only.
   auto source_xyz = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
-  auto target_xyz = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
   pcl::copyPointCloud(*input_, *indices_, *source_xyz);
-  pcl::copyPointCloud(*target_, *target_xyz);
+  registration_.setInputSource(source_features_, source_xyz);
+  if (!target_prepared_) {
+    target_features_ = std::make_shared<RasterFeatureSet>();
+    extractFeatures<PointTarget>(target_, nullptr, *target_features_);
+    auto target_xyz = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    pcl::copyPointCloud(*target_, *target_xyz);
+    registration_.setInputTarget(target_features_, target_xyz);
+    target_prepared_ = true;
+  }
 
-  CorrespondenceRigidRegistration registration(params_.registration);
-  registration.setInputSource(std::make_shared<const RasterFeatureSet>(source_features_),
-                              source_xyz);
-  registration.setInputTarget(std::make_shared<const RasterFeatureSet>(target_features_),
-                              target_xyz);
   Eigen::Isometry3d T_guess;
   T_guess.matrix() = guess.template cast<double>();
-  result_ = registration.align(T_guess);
-  inliers_ = registration.getInliers();
+  result_ = registration_.align(T_guess);
+  inliers_ = registration_.getInliers();
 
   converged_ = result_.success;
   transformation_ = final_transformation_ =
