@@ -117,6 +117,49 @@ TEST(RasterORBRegistration, FailureIsReportedNotHidden)
       << reg.getResult().message;
 }
 
+TEST(RasterORBRegistration, NullOrEmptyCloudsThrowInsteadOfKeepingTheOldOnes)
+{
+  pcl::rast::RasterORBRegistration<pcl::PointXYZ, pcl::PointXYZ> reg;
+  const auto empty = std::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
+  EXPECT_THROW(reg.setInputSource(empty), std::invalid_argument);
+  EXPECT_THROW(reg.setInputTarget(empty), std::invalid_argument);
+  EXPECT_THROW(reg.setInputSource(nullptr), std::invalid_argument);
+  try {
+    reg.setInputTarget(nullptr);
+    FAIL() << "no exception";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("target cloud is null"), std::string::npos)
+        << e.what();
+  }
+}
+
+TEST(RasterORBRegistrationRealData, AKeptTargetGivesWhatAFreshOneGives)
+{
+  // The target's features and dense target are prepared once and reused for the next
+  // source; the result must equal that of a registration that never saw another source.
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  const auto dir = data / "kitti-raw-22" / "pcd";
+  auto target = std::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
+  auto first = std::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
+  auto second = std::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
+  ASSERT_EQ(pcl::io::loadPCDFile((dir / "0000000000.pcd").string(), *target), 0);
+  ASSERT_EQ(pcl::io::loadPCDFile((dir / "0000000001.pcd").string(), *first), 0);
+  ASSERT_EQ(pcl::io::loadPCDFile((dir / "0000000002.pcd").string(), *second), 0);
+  pcl::PointCloud<pcl::PointXYZ> aligned;
+  pcl::rast::RasterORBRegistration<pcl::PointXYZ, pcl::PointXYZ> kept, fresh;
+  kept.setInputTarget(target);
+  kept.setInputSource(first);
+  kept.align(aligned);
+  kept.setInputSource(second);
+  kept.align(aligned);
+  fresh.setInputTarget(target);
+  fresh.setInputSource(second);
+  fresh.align(aligned);
+  ASSERT_TRUE(kept.hasConverged()) << kept.getResult().message;
+  EXPECT_EQ(kept.getFinalTransformation(), fresh.getFinalTransformation());
+  EXPECT_EQ(kept.getTargetFeatures().size(), fresh.getTargetFeatures().size());
+}
+
 TEST(RasterORBRegistration, InvalidParametersThrowNamingTheValue)
 {
   pcl::rast::RasterORBRegistrationParams params;

@@ -75,8 +75,14 @@ public:
   /// \brief Counts, residual and message of the last align().
   const RegistrationResult& getResult() const { return result_; }
 
+  /// \brief The cloud to align. Unlike PCL's registrations, which print an error and
+  /// keep the previous cloud, a null or empty cloud throws.
+  /// \throws std::invalid_argument when \a cloud is null or empty
+  void setInputSource(const typename PointCloudSource::ConstPtr& cloud) override;
+
   /// \brief A new target: its features and dense target are prepared on the next
   /// align() and then reused while the target stays (many sources, one map).
+  /// \throws std::invalid_argument when \a cloud is null or empty
   void setInputTarget(const typename PointCloudTarget::ConstPtr& cloud) override;
 
   /// \brief The ORB features of the last align(): source, then target.

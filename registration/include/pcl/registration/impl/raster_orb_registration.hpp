@@ -36,8 +36,24 @@ void
 RasterORBRegistration<PointSource, PointTarget, Scalar>::setInputTarget(
     const typename PointCloudTarget::ConstPtr& cloud)
 {
+  if (!cloud || cloud->empty())
+    throw std::invalid_argument(std::string("RasterORBRegistration::setInputTarget: the "
+                                            "target cloud is ") +
+                                (cloud ? "empty" : "null"));
   Base::setInputTarget(cloud);
   target_prepared_ = false;
+}
+
+template <typename PointSource, typename PointTarget, typename Scalar>
+void
+RasterORBRegistration<PointSource, PointTarget, Scalar>::setInputSource(
+    const typename PointCloudSource::ConstPtr& cloud)
+{
+  if (!cloud || cloud->empty())
+    throw std::invalid_argument(std::string("RasterORBRegistration::setInputSource: the "
+                                            "source cloud is ") +
+                                (cloud ? "empty" : "null"));
+  Base::setInputSource(cloud);
 }
 
 template <typename PointSource, typename PointTarget, typename Scalar>
