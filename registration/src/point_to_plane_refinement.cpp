@@ -3,15 +3,14 @@
 /// perturbation) against a target indexed once in a voxel hash map (no kd-tree).
 
 #include <pcl/registration/point_to_plane_refinement.h>
+#include <pcl/registration/voxel_hash_map.h>
 
-#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <stdexcept>
-#include <unordered_set>
 
 namespace pcl {
 namespace rast {
@@ -78,33 +77,6 @@ checkParams(const PointToPlaneParams& params, const char* function)
     throw std::invalid_argument(std::string(function) + ": invalid params: " + why);
 }
 
-/// Robust weight w(r) of a residual r for kernel scale s.
-double
-robustWeight(RobustKernel kernel, double r, double s)
-{
-  const double a = std::abs(r);
-  switch (kernel) {
-  case RobustKernel::kNone:
-    return 1.0;
-  case RobustKernel::kHuber: { // usual tuning constant k = 1.345 sigma
-    const double k = 1.345 * s;
-    return a <= k ? 1.0 : k / a;
-  }
-  case RobustKernel::kTukey: { // usual tuning constant c = 4.685 sigma
-    const double c = 4.685 * s;
-    if (a >= c)
-      return 0.0;
-    const double u = 1.0 - (r / c) * (r / c);
-    return u * u;
-  }
-  case RobustKernel::kGemanMcClure: {
-    const double u = s * s / (s * s + r * r);
-    return u * u;
-  }
-  }
-  return 1.0;
-}
-
 /// Rotation of a small rotation vector (Rodrigues).
 Eigen::Matrix3d
 expRotation(const Eigen::Vector3d& omega)
@@ -128,19 +100,9 @@ voxelDownsample(const PointVector& points, double voxel_size_m)
         out.push_back(p);
     return out;
   }
-  // 21 bits per axis: +-2^20 voxels, i.e. +-52 km at 5 cm voxels.
-  auto key = [voxel_size_m](const Eigen::Vector3d& p) {
-    std::uint64_t k = 0;
-    for (int a = 0; a < 3; ++a) {
-      const auto cell = static_cast<std::int64_t>(std::floor(p[a] / voxel_size_m));
-      k = (k << 21) | (static_cast<std::uint64_t>(cell + (1 << 20)) & 0x1FFFFF);
-    }
-    return k;
-  };
-  std::unordered_set<std::uint64_t> occupied;
-  occupied.reserve(points.size());
+  VoxelOccupancy occupancy(voxel_size_m, points.size() / 8);
   for (const auto& p : points)
-    if (p.allFinite() && occupied.insert(key(p)).second)
+    if (p.allFinite() && occupancy.insert(p))
       out.push_back(p);
   return out;
 }
@@ -158,97 +120,17 @@ toPointVector(const pcl::PointCloud<pcl::PointXYZI>& cloud)
 
 namespace {
 
-/// Packed integer coordinates of a cell: 21 bits per axis, +-2^20 cells (+-52 km at
-/// 5 cm). Never all ones, which marks an empty hash slot.
-using CellKey = std::uint64_t;
-constexpr CellKey kEmptyKey = ~CellKey(0);
-
-CellKey
-packCell(std::int64_t x, std::int64_t y, std::int64_t z)
-{
-  auto bits = [](std::int64_t c) {
-    return static_cast<std::uint64_t>(c + (1 << 20)) & 0x1FFFFF;
-  };
-  return (bits(x) << 42) | (bits(y) << 21) | bits(z);
-}
-
 Eigen::Array3i
 cellOf(const Eigen::Vector3d& p, double inverse_cell_m)
 {
   return (p * inverse_cell_m).array().floor().cast<int>();
 }
 
-/// Open-addressing hash map CellKey -> int (linear probing, power-of-two capacity).
-/// Much faster than std::unordered_map for the millions of look-ups of a refinement.
-class CellHash
+VoxelKey
+keyOf(const Eigen::Array3i& cell)
 {
-public:
-  void
-  reset(std::size_t expected)
-  {
-    std::size_t capacity = 16;
-    while (capacity < 2 * expected)
-      capacity *= 2;
-    keys_.assign(capacity, kEmptyKey);
-    values_.assign(capacity, -1);
-    mask_ = capacity - 1;
-    size_ = 0;
-  }
-  /// Value of key, inserting `value` when absent; returns (value, inserted). Grows at
-  /// half load, so reset() may under-estimate (a small table stays in cache).
-  std::pair<int, bool>
-  insert(CellKey key, int value)
-  {
-    for (std::size_t i = slot(key);; i = (i + 1) & mask_) {
-      if (keys_[i] == key)
-        return {values_[i], false};
-      if (keys_[i] == kEmptyKey) {
-        if (2 * (size_ + 1) > keys_.size()) {
-          grow();
-          return insert(key, value);
-        }
-        keys_[i] = key;
-        values_[i] = value;
-        ++size_;
-        return {value, true};
-      }
-    }
-  }
-  /// Value of key, or -1.
-  int
-  find(CellKey key) const
-  {
-    if (keys_.empty())
-      return -1;
-    for (std::size_t i = slot(key);; i = (i + 1) & mask_) {
-      if (keys_[i] == key)
-        return values_[i];
-      if (keys_[i] == kEmptyKey)
-        return -1;
-    }
-  }
-
-private:
-  void
-  grow()
-  {
-    std::vector<CellKey> keys = std::move(keys_);
-    std::vector<int> values = std::move(values_);
-    reset(keys.size()); // twice the capacity
-    for (std::size_t i = 0; i < keys.size(); ++i)
-      if (keys[i] != kEmptyKey)
-        insert(keys[i], values[i]);
-  }
-  std::size_t
-  slot(CellKey key) const
-  {
-    return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ull) >> 20) & mask_;
-  }
-  std::vector<CellKey> keys_;
-  std::vector<int> values_;
-  std::size_t mask_ = 0;
-  std::size_t size_ = 0;
-};
+  return packVoxelKey(cell.x(), cell.y(), cell.z());
+}
 
 /// Raw-point statistics of one voxel: count, sum and sum of outer products.
 struct VoxelStats
@@ -267,7 +149,7 @@ struct PointToPlaneTarget::Index
 {
   double cell_m = 1.0;
   double inverse_cell_m = 1.0;
-  CellHash cells;                     // cell -> slot in ranges
+  VoxelHashMap cells;                     // cell -> slot in ranges
   std::vector<std::pair<int, int>> ranges; // [begin, end) in order
   std::vector<int> order;                  // point indices sorted by cell
   // Point coordinates in `order`, float for a compact, cache-friendly scan.
@@ -287,10 +169,10 @@ PointToPlaneTarget::buildIndex(double cell_size_m)
   index->cell_m = cell_size_m;
   index->inverse_cell_m = 1.0 / cell_size_m;
   const std::size_t n = points_.size();
-  std::vector<CellKey> keys(n);
+  std::vector<VoxelKey> keys(n);
   for (std::size_t i = 0; i < n; ++i) {
     const Eigen::Array3i c = cellOf(points_[i], index->inverse_cell_m);
-    keys[i] = packCell(c.x(), c.y(), c.z());
+    keys[i] = keyOf(c);
   }
   index->order.resize(n);
   for (std::size_t i = 0; i < n; ++i)
@@ -326,7 +208,7 @@ PointToPlaneTarget::build(const PointVector& points,
   // 1. Voxel statistics of the raw points in one pass (no per-point neighbour search).
   const double voxel_m = params.target_voxel_size_m > 0.0 ? params.target_voxel_size_m : 0.3;
   const double inverse_voxel_m = 1.0 / voxel_m;
-  CellHash voxel_of_cell;
+  VoxelHashMap voxel_of_cell;
   voxel_of_cell.reset(points.size() / 32);
   std::vector<VoxelStats> voxels;
   voxels.reserve(points.size() / 4 + 16);
@@ -335,7 +217,7 @@ PointToPlaneTarget::build(const PointVector& points,
       continue;
     const Eigen::Array3i c = cellOf(p, inverse_voxel_m);
     const auto [v, inserted] =
-        voxel_of_cell.insert(packCell(c.x(), c.y(), c.z()), static_cast<int>(voxels.size()));
+        voxel_of_cell.insert(keyOf(c), static_cast<int>(voxels.size()));
     if (inserted) {
       voxels.emplace_back();
       voxels.back().cell = c;
@@ -373,7 +255,7 @@ PointToPlaneTarget::build(const PointVector& points,
         for (int dy = -radius; dy <= radius; ++dy)
           for (int dz = -radius; dz <= radius; ++dz) {
             const int j = voxel_of_cell.find(
-                packCell(voxel.cell.x() + dx, voxel.cell.y() + dy, voxel.cell.z() + dz));
+                packVoxelKey(voxel.cell.x() + dx, voxel.cell.y() + dy, voxel.cell.z() + dz));
             if (j < 0)
               continue;
             count += voxels[j].count;
@@ -468,7 +350,7 @@ PointToPlaneTarget::nearest(const Eigen::Vector3d& query,
                                       : dz > 0 ? to_upper.z() * to_upper.z() : 0.f);
         if (gz >= best_sq)
           continue;
-        const int slot = index.cells.find(packCell(cell.x() + dx, cell.y() + dy, cell.z() + dz));
+        const int slot = index.cells.find(packVoxelKey(cell.x() + dx, cell.y() + dy, cell.z() + dz));
         if (slot < 0)
           continue;
         const auto [begin, end] = index.ranges[slot];
@@ -492,7 +374,6 @@ PointToPlaneTarget::nearest(const Eigen::Vector3d& query,
 namespace {
 
 using Vector6d = Eigen::Matrix<double, 6, 1>;
-using Matrix6d = Eigen::Matrix<double, 6, 6>;
 
 /// Gauss-Newton on SE(3) (left perturbation T <- Exp([omega, dt]) T) for both costs.
 /// source_normals empty: point-to-plane whatever params.cost says.
@@ -584,9 +465,8 @@ refine(const PointVector& source_all,
                            std::max(max_scale_m, params.min_kernel_scale_m));
     }
 
-    // Weighted normal equations H dx = -b.
-    Matrix6d H = Matrix6d::Zero();
-    Vector6d b = Vector6d::Zero();
+    // Weighted normal equations H dx = -g, pivot at the target origin.
+    PointToPlaneSystem system;
     double sum_sq = 0.0;
     int num_inliers = 0;
     for (const Pair& pair : pairs) {
@@ -598,40 +478,22 @@ refine(const PointVector& source_all,
       if (w <= 0.0)
         continue;
       if (!plane_to_plane) {
-        // r = n . (T p - q); d(T p) = omega x (T p) + dt: dr/domega = (T p) x n, dr/ddt = n.
-        Vector6d J;
-        J.head<3>() = pair.p_target.cross(pair.n_q);
-        J.tail<3>() = pair.n_q;
-        H.noalias() += w * J * J.transpose();
-        b.noalias() += (w * pair.r) * J;
+        system.addPointToPlane(pair.p_target, pair.n_q, pair.r, w);
         continue;
       }
       // e = T p - q with information (C_q + R C_p R^T)^-1, C = I - (1 - eps) n n^T
       // (Segal et al. 2009, plane-to-plane); scaled by eps so that a point-to-plane pair
       // (n_p = n_q) weighs ~ 1 / 2 along the normal, as the point-to-plane cost's 1.
-      // de/d[omega, dt] = [-[T p]x, I].
       const Eigen::Matrix3d C = 2.0 * Eigen::Matrix3d::Identity() -
                                 (1.0 - eps) * (pair.n_q * pair.n_q.transpose() +
                                                pair.n_p * pair.n_p.transpose());
-      const Eigen::Matrix3d information = eps * C.inverse();
-      const Eigen::Vector3d e = pair.p_target - pair.q;
-      Eigen::Matrix<double, 3, 6> J;
-      J.leftCols<3>() << 0.0, pair.p_target.z(), -pair.p_target.y(), -pair.p_target.z(), 0.0,
-          pair.p_target.x(), pair.p_target.y(), -pair.p_target.x(), 0.0;
-      J.rightCols<3>().setIdentity();
-      const Eigen::Matrix<double, 6, 3> Jt_information = J.transpose() * information;
-      H.noalias() += w * Jt_information * J;
-      b.noalias() += w * Jt_information * e;
+      system.addPlaneToPlane(pair.p_target, eps * C.inverse(), pair.p_target - pair.q, w);
     }
     result.rmse_m = num_inliers > 0 ? std::sqrt(sum_sq / num_inliers) : 0.0;
-    const Eigen::LDLT<Matrix6d> ldlt(H);
-    if (ldlt.info() != Eigen::Success) {
-      result.message = "refinement failed: singular normal equations";
-      return result;
-    }
-    const Vector6d dx = ldlt.solve(-b);
-    if (!dx.allFinite()) {
-      result.message = "refinement failed: non-finite update (degenerate geometry)";
+    Vector6d dx;
+    if (!system.solve(dx)) {
+      result.message = "refinement failed: singular normal equations or non-finite update "
+                       "(degenerate geometry)";
       return result;
     }
     Eigen::Isometry3d update = Eigen::Isometry3d::Identity();

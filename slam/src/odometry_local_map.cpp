@@ -4,7 +4,9 @@
 
 #include "odometry_local_map.h"
 
-#include <Eigen/Eigenvalues>
+#include <pcl/registration/point_to_plane_system.h>
+
+#include <Eigen/Eigenvalues> // fitPlane
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -15,27 +17,6 @@ namespace rast {
 namespace odometry_detail {
 
 namespace {
-
-/// Voxel coordinates packed in 21 bits per axis (+-2^20 voxels; wraps beyond, which
-/// only merges far-apart voxels of a >1000 km map).
-inline std::uint64_t
-packKey(std::int64_t x, std::int64_t y, std::int64_t z)
-{
-  constexpr std::int64_t kOffset = 1 << 20;
-  constexpr std::uint64_t kMask = 0x1FFFFF;
-  return ((static_cast<std::uint64_t>(x + kOffset) & kMask) << 42) |
-         ((static_cast<std::uint64_t>(y + kOffset) & kMask) << 21) |
-         (static_cast<std::uint64_t>(z + kOffset) & kMask);
-}
-
-inline std::uint64_t
-hashKey(std::uint64_t k)
-{
-  k ^= k >> 33;
-  k *= 0xff51afd7ed558ccdULL;
-  k ^= k >> 33;
-  return k;
-}
 
 /// Characteristic length turning rotation rows of the Jacobian into metres, so that
 /// the eigenvalues of the 6x6 normal equations are comparable (a rotation of 1/L rad
@@ -57,50 +38,12 @@ voxelDownsampleIndices(const pcl::PointCloud<pcl::PointXYZI>& cloud,
                        const RangeFilter& filter)
 {
   std::vector<int> out;
-  const std::size_t n = cloud.size();
-  // Linear probing with load factor <= 0.5, grown on demand (sized by the voxels,
-  // not the points, so the table stays in cache); 0 marks an empty slot (packKey is
-  // never 0 within +-2^20 voxels, and the range crop keeps points far inside that).
-  std::vector<std::uint64_t> table(1 << 14, 0);
-  std::size_t mask = table.size() - 1;
-  auto insert = [&](std::uint64_t k) {
-    std::size_t slot = hashKey(k) & mask;
-    while (table[slot] != 0 && table[slot] != k)
-      slot = (slot + 1) & mask;
-    if (table[slot] == k)
-      return false;
-    table[slot] = k;
-    return true;
-  };
-  // floor() via truncation of a positive biased value: several times cheaper.
-  constexpr double kBias = 1 << 20;
-  const double inv = 1.0 / voxel_size_m;
-  auto cell = [&](float v) {
-    return static_cast<std::int64_t>(v * inv + kBias) - static_cast<std::int64_t>(kBias);
-  };
-  out.reserve(n / 8);
-  // Consecutive scan points often share a voxel: skip the probe for a repeated key
-  // (already in the table). 0 is never a key, so the first point always probes.
-  std::uint64_t last_key = 0;
-  for (std::size_t i = 0; i < n; ++i) {
+  out.reserve(cloud.size() / 8);
+  VoxelOccupancy occupancy(voxel_size_m, 1 << 13);
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
     const auto& p = cloud.points[i];
-    if (!filter(p))
-      continue;
-    const std::uint64_t k = packKey(cell(p.x), cell(p.y), cell(p.z));
-    if (k == last_key)
-      continue;
-    last_key = k;
-    if (!insert(k))
-      continue;
-    out.push_back(static_cast<int>(i));
-    if (2 * out.size() > table.size()) { // grow and rehash
-      std::vector<std::uint64_t> old(table.size() * 2, 0);
-      old.swap(table);
-      mask = table.size() - 1;
-      for (const std::uint64_t k : old)
-        if (k != 0)
-          insert(k);
-    }
+    if (filter(p) && occupancy.insert(p.getVector3fMap()))
+      out.push_back(static_cast<int>(i));
   }
   return out;
 }
@@ -145,16 +88,10 @@ VoxelPlaneMap::VoxelPlaneMap(const DenseTrackingParams& params)
     : params_(params), inv_voxel_size_(static_cast<float>(1.0 / params.map_voxel_size_m))
 {}
 
-std::uint64_t
-VoxelPlaneMap::key(std::int64_t x, std::int64_t y, std::int64_t z)
-{
-  return packKey(x, y, z);
-}
-
-std::uint64_t
+VoxelKey
 VoxelPlaneMap::key(const Eigen::Vector3f& p) const
 {
-  return packKey(static_cast<std::int64_t>(std::floor(p.x() * inv_voxel_size_)),
+  return packVoxelKey(static_cast<std::int64_t>(std::floor(p.x() * inv_voxel_size_)),
                  static_cast<std::int64_t>(std::floor(p.y() * inv_voxel_size_)),
                  static_cast<std::int64_t>(std::floor(p.z() * inv_voxel_size_)));
 }
@@ -191,29 +128,53 @@ VoxelPlaneMap::insert(const Points3f& points_world, const Eigen::Vector3f& cente
 {
   const std::size_t max_points =
       static_cast<std::size_t>(params_.map_max_points_per_voxel);
-  std::vector<Voxel*> touched;
+  std::vector<int> touched;
   for (const auto& p : points_world) {
-    Voxel& voxel = voxels_[key(p)];
+    const auto [v, inserted] = index_.insert(key(p), static_cast<int>(voxels_.size()));
+    if (inserted)
+      voxels_.emplace_back();
+    Voxel& voxel = voxels_[v];
     if (voxel.points.size() >= max_points)
       continue;
-    if (voxel.points.empty())
+    if (voxel.points.empty()) { // new, or dropped before and now back
       voxel.points.reserve(max_points);
+      if (!inserted)
+        --num_dropped_;
+    }
     voxel.points.push_back(p);
-    touched.push_back(&voxel);
+    touched.push_back(v);
   }
   std::sort(touched.begin(), touched.end());
   touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
-  for (Voxel* voxel : touched)
-    fitPlane(*voxel);
+  for (const int v : touched)
+    fitPlane(voxels_[v]);
 
-  // Keep the map local: drop voxels far from the newest key-frame.
+  // Keep the map local: drop voxels far from the newest key-frame. A dropped voxel
+  // stays indexed, empty and not planar (as if absent), until they are half the map.
   const float radius_sq = static_cast<float>(params_.map_radius_m * params_.map_radius_m);
-  for (auto it = voxels_.begin(); it != voxels_.end();) {
-    if ((it->second.points.front() - center).squaredNorm() > radius_sq)
-      it = voxels_.erase(it);
-    else
-      ++it;
+  for (Voxel& voxel : voxels_)
+    if (!voxel.points.empty() && (voxel.points.front() - center).squaredNorm() > radius_sq) {
+      Points3f().swap(voxel.points);
+      voxel.planar = false;
+      ++num_dropped_;
+    }
+  if (2 * num_dropped_ > voxels_.size()) {
+    voxels_.erase(std::remove_if(voxels_.begin(),
+                                 voxels_.end(),
+                                 [](const Voxel& voxel) { return voxel.points.empty(); }),
+                  voxels_.end());
+    num_dropped_ = 0;
+    index_.reset(voxels_.size());
+    for (std::size_t v = 0; v < voxels_.size(); ++v)
+      index_.insert(key(voxels_[v].points.front()), static_cast<int>(v));
   }
+}
+
+const VoxelPlaneMap::Voxel*
+VoxelPlaneMap::planarVoxel(std::int64_t x, std::int64_t y, std::int64_t z) const
+{
+  const int v = index_.find(packVoxelKey(x, y, z));
+  return v >= 0 && voxels_[v].planar ? &voxels_[v] : nullptr;
 }
 
 bool
@@ -224,10 +185,9 @@ VoxelPlaneMap::plane(const Eigen::Vector3f& query,
   const auto x = static_cast<std::int64_t>(std::floor(query.x() * inv_voxel_size_));
   const auto y = static_cast<std::int64_t>(std::floor(query.y() * inv_voxel_size_));
   const auto z = static_cast<std::int64_t>(std::floor(query.z() * inv_voxel_size_));
-  auto it = voxels_.find(key(x, y, z));
-  if (it != voxels_.end() && it->second.planar) {
-    centroid = it->second.centroid;
-    normal = it->second.normal;
+  if (const Voxel* own = planarVoxel(x, y, z)) {
+    centroid = own->centroid;
+    normal = own->normal;
     return true;
   }
   // The point may sit just off its surface's voxel: try the face neighbours.
@@ -235,14 +195,14 @@ VoxelPlaneMap::plane(const Eigen::Vector3f& query,
       {1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
   float best_sq = std::numeric_limits<float>::max();
   for (const auto& f : kFaces) {
-    it = voxels_.find(key(x + f[0], y + f[1], z + f[2]));
-    if (it == voxels_.end() || !it->second.planar)
+    const Voxel* voxel = planarVoxel(x + f[0], y + f[1], z + f[2]);
+    if (!voxel)
       continue;
-    const float d_sq = (it->second.centroid - query).squaredNorm();
+    const float d_sq = (voxel->centroid - query).squaredNorm();
     if (d_sq < best_sq) {
       best_sq = d_sq;
-      centroid = it->second.centroid;
-      normal = it->second.normal;
+      centroid = voxel->centroid;
+      normal = voxel->normal;
     }
   }
   return best_sq < std::numeric_limits<float>::max();
@@ -254,11 +214,7 @@ VoxelPlaneMap::plane(const Eigen::Vector3f& query,
 Eigen::Matrix<double, 6, 1>
 denseTangent(const Eigen::Isometry3d& from, const Eigen::Isometry3d& to)
 {
-  const Eigen::AngleAxisd aa(to.rotation() * from.rotation().transpose());
-  Eigen::Matrix<double, 6, 1> delta;
-  delta.head<3>() = aa.angle() * aa.axis() * kRotationLengthM;
-  delta.tail<3>() = to.translation() - from.translation();
-  return delta;
+  return PointToPlaneSystem(kRotationLengthM).tangent(from, to);
 }
 
 double
@@ -268,6 +224,80 @@ denseSeparation(const DenseResult& dense, const Eigen::Isometry3d& other)
   return std::sqrt(std::max(0.0, delta.dot(dense.information * delta)));
 }
 
+namespace {
+
+/// The point-to-plane normal equations of \a source at (R, t) against \a map.
+struct Linearisation
+{
+  PointToPlaneSystem system{kRotationLengthM};
+  int paired = 0;  ///< points paired with a map plane
+  int inliers = 0; ///< ... with |r| within 3 kernel scales
+  double sum_sq = 0.0;
+};
+
+Linearisation
+linearise(const Points3f& source,
+          const VoxelPlaneMap& map,
+          const Eigen::Matrix3d& R,
+          const Eigen::Vector3d& t,
+          double scale_m,
+          double max_distance_m)
+{
+  // r = n . (q - c), q = R p + t; perturbation about the sensor position:
+  // R <- Exp(omega) R, t <- t + dt, so the lever of q is q - t.
+  Linearisation l;
+  const Eigen::Matrix3f R_f = R.cast<float>();
+  const Eigen::Vector3f t_f = t.cast<float>();
+  Eigen::Vector3f c, n;
+  for (const auto& p : source) {
+    const Eigen::Vector3f q = R_f * p + t_f;
+    if (!map.plane(q, c, n))
+      continue;
+    const double r = n.dot(q - c);
+    if (std::abs(r) > max_distance_m)
+      continue;
+    ++l.paired;
+    l.system.addPointToPlane((q - t_f).cast<double>(), n.cast<double>(), r,
+                             robustWeight(RobustKernel::kGemanMcClure, r, scale_m));
+    if (std::abs(r) <= 3.0 * scale_m) {
+      l.sum_sq += r * r;
+      ++l.inliers;
+    }
+  }
+  return l;
+}
+
+/// The final checks of registerToMap on its result: a run-away correction fails.
+void
+finish(DenseResult& result,
+       const Eigen::Isometry3d& T_world_lidar_guess,
+       const DenseTrackingParams& params)
+{
+  const Eigen::Isometry3d correction =
+      T_world_lidar_guess.inverse() * result.T_world_lidar;
+  const double correction_m = correction.translation().norm();
+  const double correction_deg =
+      Eigen::AngleAxisd(correction.rotation()).angle() * 180.0 / M_PI;
+  if (correction_m > params.max_correction_m ||
+      correction_deg > params.max_correction_deg) {
+    result.message = "dense: diverged, moved " + std::to_string(correction_m) + " m / " +
+                     std::to_string(correction_deg) + " deg from its start";
+    return;
+  }
+  result.success = true;
+  result.message = "dense: " + std::to_string(result.iterations) + " iterations, " +
+                   std::to_string(result.num_correspondences) + "/" +
+                   std::to_string(result.num_source_points) + " paired, rmse " +
+                   std::to_string(result.rmse_m) + " m" + ", weakest direction " +
+                   std::to_string(result.weakest_ratio) + " of the weight" +
+                   (result.degenerate_directions > 0
+                        ? ", " + std::to_string(result.degenerate_directions) +
+                              " degenerate direction(s) kept at the guess"
+                        : std::string());
+}
+
+} // namespace
+
 DenseResult
 registerToMap(const Points3f& source,
               const VoxelPlaneMap& map,
@@ -276,7 +306,6 @@ registerToMap(const Points3f& source,
               const DenseOptions& options)
 {
   using Vector6d = Eigen::Matrix<double, 6, 1>;
-  using Matrix6d = Eigen::Matrix<double, 6, 6>;
   DenseResult result;
   result.T_world_lidar = T_world_lidar_guess;
   result.num_source_points = static_cast<int>(source.size());
@@ -291,80 +320,34 @@ registerToMap(const Points3f& source,
                                  ? std::min(options.initial_kernel_scale_m,
                                             params.max_correspondence_distance_m / 3.0)
                                  : params.max_correspondence_distance_m / 3.0;
-  Eigen::Vector3f c, n;
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
     const double scale_m =
         std::max(params.min_kernel_scale_m, max_scale_m * std::pow(0.5, iteration));
-    const double scale_sq = scale_m * scale_m;
-    const Eigen::Matrix3f R_f = R.cast<float>();
-    const Eigen::Vector3f t_f = t.cast<float>();
-
-    // Linearise r = n . (q - c), q = R p + t; perturbation about the sensor position:
-    // R <- Exp(omega) R, t <- t + dt, so dr/domega = (q - t) x n, dr/ddt = n.
-    Matrix6d H = Matrix6d::Zero();
-    Vector6d g = Vector6d::Zero();
-    double sum_w = 0.0, sum_sq = 0.0;
-    int paired = 0, inliers = 0;
-    for (const auto& p : source) {
-      const Eigen::Vector3f q = R_f * p + t_f;
-      if (!map.plane(q, c, n))
-        continue;
-      const double r = n.dot(q - c);
-      if (std::abs(r) > params.max_correspondence_distance_m)
-        continue;
-      ++paired;
-      const double u = scale_sq / (scale_sq + r * r); // Geman-McClure: w = u^2
-      const double w = u * u;
-      Vector6d J;
-      J.head<3>() = (q - t_f).cast<double>().cross(n.cast<double>()) / kRotationLengthM;
-      J.tail<3>() = n.cast<double>();
-      H.noalias() += w * J * J.transpose();
-      g.noalias() += w * r * J;
-      sum_w += w;
-      if (std::abs(r) <= 3.0 * scale_m) {
-        sum_sq += r * r;
-        ++inliers;
-      }
-    }
+    const Linearisation l =
+        linearise(source, map, R, t, scale_m, params.max_correspondence_distance_m);
     result.iterations = iteration + 1;
-    result.num_correspondences = paired;
-    result.rmse_m = inliers > 0 ? std::sqrt(sum_sq / inliers) : 0.0;
-    if (paired < params.min_correspondences) {
-      result.message = "dense: " + std::to_string(paired) +
+    result.num_correspondences = l.paired;
+    result.rmse_m = l.inliers > 0 ? std::sqrt(l.sum_sq / l.inliers) : 0.0;
+    if (l.paired < params.min_correspondences) {
+      result.message = "dense: " + std::to_string(l.paired) +
                        " points paired with map planes < " +
                        std::to_string(params.min_correspondences);
       return result;
     }
 
-    // Solve H dx = -g in H's eigenbasis, skipping the degenerate directions.
-    const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(H);
-    const double threshold = params.degeneracy_min_ratio * sum_w;
-    Vector6d dx = Vector6d::Zero();
-    int degenerate = 0;
-    for (int k = 0; k < 6; ++k) {
-      const double lambda = eig.eigenvalues()(k);
-      if (!(lambda > threshold)) {
-        ++degenerate;
-        continue;
-      }
-      const Vector6d v = eig.eigenvectors().col(k);
-      dx -= v * (v.dot(g) / lambda);
-    }
-    if (degenerate > 0 && options.T_world_anchor) {
-      // The degenerate directions move to the anchor's value.
-      Eigen::Isometry3d T_now = Eigen::Isometry3d::Identity();
-      T_now.linear() = R;
-      T_now.translation() = t;
-      const Vector6d to_anchor = denseTangent(T_now, *options.T_world_anchor);
-      for (int k = 0; k < 6; ++k)
-        if (!(eig.eigenvalues()(k) > threshold)) {
-          const Vector6d v = eig.eigenvectors().col(k);
-          dx += v * v.dot(to_anchor);
-        }
-    }
-    result.degenerate_directions = degenerate;
-    result.weakest_ratio = sum_w > 0.0 ? eig.eigenvalues()(0) / sum_w : 0.0;
-    result.information = sum_w > 0.0 ? Matrix6d(H / sum_w) : Matrix6d::Zero();
+    // Solve in H's eigenbasis, skipping (or anchoring) the degenerate directions.
+    Eigen::Isometry3d T_now = Eigen::Isometry3d::Identity();
+    T_now.linear() = R;
+    T_now.translation() = t;
+    Vector6d to_anchor = Vector6d::Zero();
+    if (options.T_world_anchor)
+      to_anchor = l.system.tangent(T_now, *options.T_world_anchor);
+    const PointToPlaneSystem::Step step = l.system.solveDegeneracyAware(
+        params.degeneracy_min_ratio, options.T_world_anchor ? &to_anchor : nullptr);
+    const Vector6d& dx = step.dx;
+    result.degenerate_directions = step.degenerate_directions;
+    result.weakest_ratio = step.weakest_ratio;
+    result.information = step.information;
     if (!dx.allFinite()) {
       result.message = "dense: non-finite update";
       return result;
@@ -380,30 +363,9 @@ registerToMap(const Points3f& source,
         dx.tail<3>().norm() < params.convergence_translation_m)
       break;
   }
-
   result.T_world_lidar.linear() = R;
   result.T_world_lidar.translation() = t;
-  const Eigen::Isometry3d correction =
-      T_world_lidar_guess.inverse() * result.T_world_lidar;
-  const double correction_m = correction.translation().norm();
-  const double correction_deg =
-      Eigen::AngleAxisd(correction.rotation()).angle() * 180.0 / M_PI;
-  if (correction_m > params.max_correction_m ||
-      correction_deg > params.max_correction_deg) {
-    result.message = "dense: diverged, moved " + std::to_string(correction_m) + " m / " +
-                     std::to_string(correction_deg) + " deg from its start";
-    return result;
-  }
-  result.success = true;
-  result.message = "dense: " + std::to_string(result.iterations) + " iterations, " +
-                   std::to_string(result.num_correspondences) + "/" +
-                   std::to_string(result.num_source_points) + " paired, rmse " +
-                   std::to_string(result.rmse_m) + " m" + ", weakest direction " +
-                   std::to_string(result.weakest_ratio) + " of the weight" +
-                   (result.degenerate_directions > 0
-                        ? ", " + std::to_string(result.degenerate_directions) +
-                              " degenerate direction(s) kept at the guess"
-                        : std::string());
+  finish(result, T_world_lidar_guess, params);
   return result;
 }
 

@@ -8,9 +8,9 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <cstdint>
+#include <pcl/registration/voxel_hash_map.h>
 #include <pcl/slam/odometry.h>
 #include <string>
-#include <unordered_map>
 #include <vector>
 
 namespace pcl {
@@ -71,8 +71,8 @@ public:
              Eigen::Vector3f& centroid,
              Eigen::Vector3f& normal) const;
 
-  std::size_t size() const { return voxels_.size(); }
-  bool empty() const { return voxels_.empty(); }
+  std::size_t size() const { return voxels_.size() - num_dropped_; }
+  bool empty() const { return size() == 0; }
 
 private:
   struct Voxel
@@ -82,13 +82,16 @@ private:
     Eigen::Vector3f normal = Eigen::Vector3f::Zero();
     bool planar = false;
   };
-  std::uint64_t key(const Eigen::Vector3f& p) const;
-  static std::uint64_t key(std::int64_t x, std::int64_t y, std::int64_t z);
+  VoxelKey key(const Eigen::Vector3f& p) const;
+  /// The voxel at (x, y, z) when it holds a plane, else null.
+  const Voxel* planarVoxel(std::int64_t x, std::int64_t y, std::int64_t z) const;
   void fitPlane(Voxel& voxel) const;
 
   DenseTrackingParams params_;
   float inv_voxel_size_;
-  std::unordered_map<std::uint64_t, Voxel> voxels_;
+  std::vector<Voxel> voxels_;    ///< insertion order; dropped ones empty until compacted
+  VoxelHashMap index_;           ///< voxel key -> position in voxels_
+  std::size_t num_dropped_ = 0;  ///< voxels dropped by the radius crop, not compacted yet
 };
 
 /// \brief Outcome of registerToMap.

@@ -1,5 +1,6 @@
 #include <pcl/slam/slam_map.h>
 #include <pcl/rast/atomic_file.h>
+#include <pcl/registration/voxel_hash_map.h>
 
 #include <pcl/io/pcd_io.h>
 
@@ -20,22 +21,10 @@ namespace {
 /// Side of the square world tiles buildMap voxelizes one at a time [m].
 constexpr double kMapTileSizeM = 100.0;
 
-/// Key of the voxel holding \a p: 21 bits per axis, +-1M voxels (+-100 km at 0.1 m).
-std::uint64_t
-voxelKey(const Eigen::Vector3d& p, double inv_leaf)
-{
-  const auto ix = static_cast<std::int64_t>(std::floor(p.x() * inv_leaf));
-  const auto iy = static_cast<std::int64_t>(std::floor(p.y() * inv_leaf));
-  const auto iz = static_cast<std::int64_t>(std::floor(p.z() * inv_leaf));
-  return (static_cast<std::uint64_t>(ix & 0x1FFFFF) << 42) |
-         (static_cast<std::uint64_t>(iy & 0x1FFFFF) << 21) |
-         static_cast<std::uint64_t>(iz & 0x1FFFFF);
-}
-
 /// A point ready for voxel averaging: its voxel key, position and intensity (24 bytes).
 struct VoxelSample
 {
-  std::uint64_t key;
+  VoxelKey key;
   float x, y, z, intensity;
   std::uint32_t weight = 1; ///< points it stands for (a merged voxel mean)
 };
@@ -100,7 +89,7 @@ voxelDownsample(const pcl::PointCloud<pcl::PointXYZI>& cloud, double leaf_m)
   samples.reserve(cloud.size());
   for (const auto& p : cloud.points)
     if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z))
-      samples.push_back({voxelKey(p.getVector3fMap().cast<double>(), inv_leaf), p.x, p.y, p.z,
+      samples.push_back({voxelKeyOf(p.getVector3fMap(), inv_leaf), p.x, p.y, p.z,
                          p.intensity, 1});
   auto out = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
   appendVoxelMeans(samples, *out);
@@ -762,7 +751,7 @@ SlamMap::forEachMapTile(double leaf_m, const MapTileSink& sink) const
         const Eigen::Vector3d p = T * Eigen::Vector3d(q.x * res, q.y * res, q.z * res);
         if (tileOf(p.x()) != tile.first || tileOf(p.y()) != tile.second)
           continue;
-        samples.push_back({voxelKey(p, inv_leaf),
+        samples.push_back({voxelKeyOf(p, inv_leaf),
                            static_cast<float>(p.x()),
                            static_cast<float>(p.y()),
                            static_cast<float>(p.z()),

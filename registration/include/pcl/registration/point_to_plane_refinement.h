@@ -6,6 +6,7 @@
 /// \ingroup registration
 
 #include <pcl/point_cloud.h>
+#include <pcl/registration/point_to_plane_system.h>
 #include <pcl/point_types.h>
 
 #include <Eigen/Core>
@@ -21,15 +22,6 @@ namespace rast {
 
 /// \brief 3D points as plain data (metres).
 using PointVector = std::vector<Eigen::Vector3d, Eigen::aligned_allocator<Eigen::Vector3d>>;
-
-/// \brief Robust kernels for the point-to-plane residual r, with scale s.
-enum class RobustKernel
-{
-  kNone,        ///< least squares, w = 1
-  kHuber,       ///< w = 1 for |r| <= k, k / |r| beyond; k = 1.345 s
-  kTukey,       ///< w = (1 - (r/c)^2)^2 for |r| < c, 0 beyond; c = 4.685 s
-  kGemanMcClure ///< w = (s^2 / (s^2 + r^2))^2
-};
 
 /// \brief Cost minimised by the refinement.
 enum class RefinementCost
@@ -119,7 +111,8 @@ struct PointToPlaneResult
 };
 
 /// \brief One point per occupied voxel (the first one met, a real measurement, as in
-/// KISS-ICP); non-finite points are dropped. voxel_size_m <= 0 keeps all finite points.
+/// KISS-ICP; VoxelOccupancy); non-finite points are dropped. voxel_size_m <= 0 keeps all
+/// finite points.
 PointVector
 voxelDownsample(const PointVector& points, double voxel_size_m);
 

@@ -1,0 +1,60 @@
+/// \file point_to_plane_system.cpp
+/// \brief Solving the point-to-plane normal equations (see point_to_plane_system.h).
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <pcl/registration/point_to_plane_system.h>
+
+namespace pcl {
+namespace rast {
+
+bool
+PointToPlaneSystem::solve(Vector6d& dx) const
+{
+  const Eigen::LDLT<Matrix6d> ldlt(H_);
+  if (ldlt.info() != Eigen::Success)
+    return false;
+  dx = ldlt.solve(-g_);
+  return dx.allFinite();
+}
+
+PointToPlaneSystem::Step
+PointToPlaneSystem::solveDegeneracyAware(double min_ratio,
+                                         const Vector6d* to_anchor) const
+{
+  Step step;
+  const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(H_);
+  const double threshold = min_ratio * sum_w_;
+  for (int k = 0; k < 6; ++k) {
+    const double lambda = eig.eigenvalues()(k);
+    if (!(lambda > threshold)) {
+      ++step.degenerate_directions;
+      continue;
+    }
+    const Vector6d v = eig.eigenvectors().col(k);
+    step.dx -= v * (v.dot(g_) / lambda);
+  }
+  if (step.degenerate_directions > 0 && to_anchor)
+    for (int k = 0; k < 6; ++k)
+      if (!(eig.eigenvalues()(k) > threshold)) {
+        const Vector6d v = eig.eigenvectors().col(k);
+        step.dx += v * v.dot(*to_anchor);
+      }
+  step.weakest_ratio = sum_w_ > 0.0 ? eig.eigenvalues()(0) / sum_w_ : 0.0;
+  step.information = sum_w_ > 0.0 ? Matrix6d(H_ / sum_w_) : Matrix6d::Zero();
+  return step;
+}
+
+PointToPlaneSystem::Vector6d
+PointToPlaneSystem::tangent(const Eigen::Isometry3d& from,
+                            const Eigen::Isometry3d& to) const
+{
+  const Eigen::AngleAxisd aa(to.rotation() * from.rotation().transpose());
+  Vector6d delta;
+  delta.head<3>() = aa.angle() * aa.axis() * rotation_length_m_;
+  delta.tail<3>() = to.translation() - from.translation();
+  return delta;
+}
+
+} // namespace rast
+} // namespace pcl

@@ -1,0 +1,178 @@
+/// \file test_dense_core.cpp
+/// \brief The dense-registration core shared by the refinement, the odometry and the map
+/// builder: voxel keys, the open-addressing voxel hash map, the first-point downsampler
+/// and the point-to-plane normal equations (plain and degeneracy-aware solves).
+
+#include <cmath>
+#include <gtest/gtest.h>
+#include <map>
+#include <pcl/registration/point_to_plane_system.h>
+#include <pcl/registration/voxel_hash_map.h>
+#include <random>
+#include <set>
+#include <tuple>
+
+namespace {
+
+using pcl::rast::packVoxelKey;
+using pcl::rast::PointToPlaneSystem;
+using pcl::rast::voxelCoordinate;
+using pcl::rast::VoxelHashMap;
+using pcl::rast::VoxelKey;
+using pcl::rast::VoxelOccupancy;
+
+TEST(VoxelKey, CoordinateIsTheFloorAndKeysOrderAsCoordinates)
+{
+  const double inv = 1.0 / 0.3;
+  for (const double v : {-10.0, -0.3, -0.29, -1e-9, 0.0, 1e-9, 0.29, 0.3, 0.61, 1234.5})
+    EXPECT_EQ(voxelCoordinate(v, inv), static_cast<std::int64_t>(std::floor(v * inv)))
+        << v;
+  // Signed coordinates order lexicographically (x, y, z) as their keys do.
+  EXPECT_LT(packVoxelKey(-1, 5, 5), packVoxelKey(0, -5, -5));
+  EXPECT_LT(packVoxelKey(0, -1, 9), packVoxelKey(0, 0, -9));
+  EXPECT_LT(packVoxelKey(0, 0, -1), packVoxelKey(0, 0, 0));
+  // Distinct within the +-2^20 range.
+  EXPECT_NE(packVoxelKey(-(1 << 20), 0, 0), packVoxelKey((1 << 20) - 1, 0, 0));
+}
+
+TEST(VoxelHashMap, AgreesWithStdMapThroughGrowth)
+{
+  std::mt19937 rng(7);
+  std::uniform_int_distribution<int> coordinate(-300, 300);
+  VoxelHashMap hash;
+  hash.reset(4); // far too small: must grow many times
+  std::map<VoxelKey, int> reference;
+  for (int i = 0; i < 20000; ++i) {
+    const VoxelKey key =
+        packVoxelKey(coordinate(rng), coordinate(rng), coordinate(rng) / 30);
+    const auto [value, inserted] = hash.insert(key, i);
+    const auto [it, ref_inserted] = reference.emplace(key, i);
+    ASSERT_EQ(inserted, ref_inserted);
+    ASSERT_EQ(value, it->second);
+  }
+  EXPECT_EQ(hash.size(), reference.size());
+  for (const auto& [key, value] : reference)
+    ASSERT_EQ(hash.find(key), value);
+  EXPECT_EQ(hash.find(packVoxelKey(1000, 1000, 1000)), -1);
+  EXPECT_EQ(VoxelHashMap().find(packVoxelKey(0, 0, 0)), -1); // never reset: empty
+}
+
+TEST(VoxelOccupancy, KeepsTheFirstPointOfEachVoxelInInputOrder)
+{
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-5.0, 5.0);
+  const double voxel = 0.5;
+  std::set<std::tuple<long, long, long>> seen;
+  VoxelOccupancy occupancy(voxel, 4);
+  int kept = 0;
+  for (int i = 0; i < 5000; ++i) {
+    // Runs of repeated points exercise the last-key shortcut.
+    const Eigen::Vector3d p(u(rng), u(rng), u(rng) * 0.2);
+    for (int repeat = 0; repeat < 1 + i % 3; ++repeat) {
+      const auto cell = std::make_tuple(static_cast<long>(std::floor(p.x() / voxel)),
+                                        static_cast<long>(std::floor(p.y() / voxel)),
+                                        static_cast<long>(std::floor(p.z() / voxel)));
+      const bool first = seen.insert(cell).second;
+      ASSERT_EQ(occupancy.insert(p), first) << "point " << i << " repeat " << repeat;
+      kept += first;
+    }
+  }
+  EXPECT_EQ(occupancy.size(), static_cast<std::size_t>(kept));
+  // Float points key as their double values do.
+  VoxelOccupancy float_occupancy(voxel);
+  EXPECT_TRUE(float_occupancy.insert(Eigen::Vector3f(0.1f, 0.1f, 0.1f)));
+  EXPECT_FALSE(float_occupancy.insert(Eigen::Vector3f(0.4f, 0.2f, 0.3f)));
+  EXPECT_TRUE(float_occupancy.insert(Eigen::Vector3f(-0.1f, 0.1f, 0.1f)));
+}
+
+/// Residuals of a known small motion of points on three orthogonal planes (or the
+/// ground only): one Gauss-Newton step undoes it.
+PointToPlaneSystem
+systemOfKnownMotion(const Eigen::Matrix<double, 6, 1>& motion,
+                    double rotation_length_m,
+                    bool only_ground)
+{
+  PointToPlaneSystem system(rotation_length_m);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-10.0, 10.0);
+  const Eigen::Vector3d omega = motion.head<3>() / rotation_length_m;
+  const Eigen::Vector3d dt = motion.tail<3>();
+  for (int i = 0; i < 300; ++i) {
+    const int axis = only_ground ? 2 : i % 3;
+    Eigen::Vector3d q(u(rng), u(rng), u(rng));
+    q[axis] = axis == 2 ? -1.7 : 8.0; // a point on the plane x = 8, y = 8 or z = -1.7
+    Eigen::Vector3d n = Eigen::Vector3d::Zero();
+    n[axis] = 1.0;
+    // The point moved by the linearised motion, q + omega x q + dt: its residual
+    // against its plane, linearised at q.
+    const double r = n.dot(omega.cross(q) + dt);
+    system.addPointToPlane(q, n, r, 1.0);
+  }
+  return system;
+}
+
+TEST(PointToPlaneSystem, OneStepUndoesASmallMotion)
+{
+  Eigen::Matrix<double, 6, 1> motion;
+  motion << 0.002, -0.001, 0.003, 0.05, -0.02, 0.01;
+  for (const double length : {1.0, 10.0}) {
+    Eigen::Matrix<double, 6, 1> scaled = motion;
+    scaled.head<3>() *= length;
+    const PointToPlaneSystem system = systemOfKnownMotion(scaled, length, false);
+    Eigen::Matrix<double, 6, 1> dx;
+    ASSERT_TRUE(system.solve(dx));
+    EXPECT_LT((dx + scaled).norm(), 1e-9) << "length " << length;
+    const PointToPlaneSystem::Step step = system.solveDegeneracyAware(0.003);
+    EXPECT_EQ(step.degenerate_directions, 0);
+    EXPECT_LT((step.dx + scaled).norm(), 1e-9);
+    EXPECT_GT(step.weakest_ratio, 0.003);
+    EXPECT_NEAR(system.sumWeights(), 300.0, 1e-9);
+  }
+}
+
+TEST(PointToPlaneSystem, GroundOnlyLeavesThreeDirectionsAtTheStartOrTheAnchor)
+{
+  Eigen::Matrix<double, 6, 1> motion;
+  motion << 0.01, -0.02, 0.0, 0.0, 0.0, 0.03; // roll, pitch, z: what a ground plane sees
+  const PointToPlaneSystem system = systemOfKnownMotion(motion, 10.0, true);
+  const PointToPlaneSystem::Step step = system.solveDegeneracyAware(0.003);
+  EXPECT_EQ(step.degenerate_directions, 3); // yaw, x, y
+  EXPECT_LT((step.dx + motion).norm(), 1e-6);
+  // An anchor 1 m away along x: the step moves there along the unconstrained x only.
+  Eigen::Matrix<double, 6, 1> to_anchor = Eigen::Matrix<double, 6, 1>::Zero();
+  to_anchor(3) = 1.0;
+  to_anchor(5) = 0.5; // z is constrained: the anchor's z is ignored
+  const PointToPlaneSystem::Step anchored =
+      system.solveDegeneracyAware(0.003, &to_anchor);
+  EXPECT_NEAR(anchored.dx(3), 1.0, 1e-9);
+  EXPECT_NEAR(anchored.dx(4), 0.0, 1e-9);
+  EXPECT_NEAR(anchored.dx(5), -motion(5), 1e-6);
+}
+
+TEST(PointToPlaneSystem, TangentScalesRotationByTheLength)
+{
+  Eigen::Isometry3d from = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d to = Eigen::Isometry3d::Identity();
+  to.linear() = Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  to.translation() = Eigen::Vector3d(1.0, 2.0, 3.0);
+  const auto delta = PointToPlaneSystem(10.0).tangent(from, to);
+  EXPECT_NEAR(delta(2), 1.0, 1e-12);
+  EXPECT_NEAR(delta.head<2>().norm(), 0.0, 1e-12);
+  EXPECT_NEAR((delta.tail<3>() - Eigen::Vector3d(1.0, 2.0, 3.0)).norm(), 0.0, 1e-12);
+}
+
+TEST(RobustWeight, KernelsDownWeightLargeResiduals)
+{
+  using pcl::rast::RobustKernel;
+  using pcl::rast::robustWeight;
+  for (const auto kernel :
+       {RobustKernel::kHuber, RobustKernel::kTukey, RobustKernel::kGemanMcClure}) {
+    EXPECT_NEAR(robustWeight(kernel, 0.0, 0.1), 1.0, 1e-12);
+    EXPECT_LT(robustWeight(kernel, 1.0, 0.1), robustWeight(kernel, 0.2, 0.1));
+  }
+  EXPECT_EQ(robustWeight(RobustKernel::kNone, 5.0, 0.1), 1.0);
+  EXPECT_EQ(robustWeight(RobustKernel::kTukey, 0.5, 0.1), 0.0); // beyond 4.685 s
+  EXPECT_NEAR(robustWeight(RobustKernel::kGemanMcClure, 0.1, 0.1), 0.25, 1e-12);
+}
+
+} // namespace
