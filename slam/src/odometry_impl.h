@@ -1,0 +1,321 @@
+#pragma once
+/// \file odometry_impl.h
+/// \brief Internal to the odometry: Odometry::Impl, the state tracking keeps between
+/// frames, and the helpers its two files share (odometry.cpp: parameters, prediction,
+/// key-frames, motion compensation; odometry_tracking.cpp: the tracking steps). Not
+/// installed.
+
+#include "odometry_local_map.h"
+
+#include <chrono>
+#include <memory>
+#include <optional>
+#include <pcl/features/orb_raster_features.h>
+#include <pcl/registration/rigid_ransac.h>
+#include <pcl/segmentation/sac_ground_removal.h>
+#include <pcl/slam/deskew.h>
+#include <pcl/slam/odometry.h>
+#include <string>
+#include <vector>
+
+namespace pcl {
+namespace rast {
+
+using odometry_detail::DenseOptions;
+using odometry_detail::DenseResult;
+using odometry_detail::denseSeparation;
+using odometry_detail::Points3f;
+using odometry_detail::VoxelPlaneMap;
+
+namespace odometry_detail {
+
+using Clock = std::chrono::steady_clock;
+
+inline double
+msSince(Clock::time_point start)
+{
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+inline double
+angleDeg(const Pose3d& T)
+{
+  return Eigen::AngleAxisd(T.rotation()).angle() * 180.0 / M_PI;
+}
+
+/// The dense step's figures of the fit a frame's pose comes from.
+inline void
+keepDenseStats(const DenseResult& dense, OdometryFrameResult& result)
+{
+  result.dense_correspondences = dense.num_correspondences;
+  result.dense_degenerate_directions = dense.degenerate_directions;
+  result.dense_rmse_m = dense.rmse_m;
+}
+
+/// Whether \a a and \a b differ by more than \a metres or \a degrees.
+inline bool
+moved(const Pose3d& a, const Pose3d& b, double metres, double degrees)
+{
+  const Pose3d d = a.inverse() * b;
+  return d.translation().norm() > metres || angleDeg(d) > degrees;
+}
+
+/// After this many frames without feature or dense tracking, a frame with features
+/// becomes a key-frame anyway (re-anchoring, flagged), so that tracking recovers after
+/// a featureless stretch instead of comparing forever against a stale key-frame.
+constexpr int kReanchorAfterFrames = 3;
+
+/// Dense ICP from the prior (no feature support) is accepted only when at least this
+/// fraction of the source points pairs with map planes (well-tracked frames: 0.8-0.95).
+constexpr double kMinFallbackPairedRatio = 0.6;
+/// ... or fewer when the optimum is distinct: it pairs at least kDistinctPairsFactor
+/// times as many points as any hypothesis that ended elsewhere. Little overlap with the
+/// map is normal after a large motion against a single key-frame (cold start at 4 m per
+/// scan: 33-60 % paired), while a wrong start settling on the ground plane is never
+/// distinct: the ground pairs about as many points from anywhere.
+constexpr double kDistinctPairsFactor = 1.25;
+/// ... but never below this fraction.
+constexpr double kMinDistinctPairedRatio = 0.2;
+/// With a tracked velocity, dense ICP from the prior is kept over a hypothesis that
+/// pairs at most 1 / this times as many points (moving cars pair too).
+constexpr double kPriorPairsShare = 0.9;
+/// ... or when the features back it (MotionHypothesisParams::guided_gate_m). The
+/// raster's descriptors are too alike for global matching (the ratio test drops most
+/// true pairs) but not under a given motion: at the start of KITTI 02 at 2 Hz (7.6 m per
+/// scan) 58 features pair at the true motion, 10-15 at 1-2 m along the road, where dense
+/// ICP pairs 395 vs 366 points.
+
+/// The firing times of one scan's points: given (a time field), or from the azimuth,
+/// then computed only for the points asked for (the non-ground points and the dense
+/// step's source), and for the whole scan only when a key-frame or the map keeps it.
+class PointTimes
+{
+public:
+  /// Times from \a given (one per point of \a cloud).
+  PointTimes(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+             const std::vector<float>& given)
+      : cloud_(cloud), given_(&given)
+  {}
+  /// Times from the azimuth (azimuthTimes).
+  PointTimes(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+             double period_s,
+             const SweepParams& sweep)
+      : cloud_(cloud), period_s_(period_s), sweep_(sweep)
+  {}
+
+  /// times[k] of point indices[k].
+  std::vector<float> of(const pcl::Indices& indices) const
+  {
+    return given_ ? gather(*given_, indices)
+                  : azimuthTimes(cloud_, indices, period_s_, sweep_);
+  }
+  /// One per point of the cloud.
+  const std::vector<float>& all()
+  {
+    if (given_)
+      return *given_;
+    if (all_.empty())
+      all_ = azimuthTimes(cloud_, period_s_, sweep_);
+    return all_;
+  }
+
+private:
+  static std::vector<float> gather(const std::vector<float>& times,
+                                   const pcl::Indices& indices)
+  {
+    std::vector<float> out(indices.size());
+    for (std::size_t k = 0; k < indices.size(); ++k)
+      out[k] = times[static_cast<std::size_t>(indices[k])];
+    return out;
+  }
+
+  const pcl::PointCloud<pcl::PointXYZI>& cloud_;
+  const std::vector<float>* given_ = nullptr;
+  double period_s_ = 0.0;
+  SweepParams sweep_;
+  std::vector<float> all_;
+};
+
+inline int
+inliersOf(const RigidRansacResult& fit)
+{
+  return fit.success ? static_cast<int>(fit.inlier_indices.size()) : 0;
+}
+
+/// The motion from \a T_world_last with the features' planar part (x, y, yaw in the
+/// last scan's frame, which top-down raster features measure well) and the prior's
+/// height, roll and pitch (which max-height pixels of few inliers do not).
+Pose3d planarFromFeatures(const Pose3d& T_world_last,
+                          const Pose3d& T_world_features,
+                          const Pose3d& T_world_prior);
+
+} // namespace odometry_detail
+
+struct Odometry::Impl
+{
+  explicit Impl(const OdometryParams& p) : params(p), ground(p.ground), map(p.dense)
+  {
+    orb.setParams(p.orb);
+    orb.setRasterParams(p.raster);
+  }
+
+  OdometryParams params;
+  SACGroundRemoval<pcl::PointXYZI> ground;
+  OrbRasterFeatureEstimator<pcl::PointXYZI> orb;
+  VoxelPlaneMap map;
+  int map_scans = 0; ///< scans inserted into the map so far
+  /// The scan that started the map, while it could not be motion-compensated yet (no
+  /// motion before it): kept with its times until the next frame's motion is known.
+  pcl::PointCloud<pcl::PointXYZI>::ConstPtr first_scan;
+  std::vector<float> first_times;
+  Pose3d T_world_first = Pose3d::Identity();
+  double t_first = 0.0;
+
+  // The key-frame tracked against. Only its immutable parts (features) are read:
+  // its pose may be corrected by the back end, tracking keeps its own copy.
+  KeyFrame::ConstPtr keyframe;
+  Pose3d T_world_keyframe = Pose3d::Identity();
+  KeyFrameId next_keyframe_id = 0;
+  int frames_since_keyframe = 0;
+  int frames_without_tracking = 0;
+  // The previous frame's features and pose (when it was tracked): the second reference
+  // when the key-frame is too far (large motion at a low frame rate).
+  std::shared_ptr<const RasterFeatureSet> last_features;
+  Pose3d T_world_last_features = Pose3d::Identity();
+
+  // Motion state for the constant-velocity prior.
+  int num_poses = 0;
+  Pose3d T_world_last = Pose3d::Identity(), T_world_before = Pose3d::Identity();
+  double t_last = 0.0, t_before = 0.0;
+  bool have_index = false;
+  std::size_t last_index = 0;
+  // Whether the last two poses were both tracked (features or dense), i.e. whether the
+  // constant-velocity prior is a measured motion; false at the cold start.
+  bool last_tracked = false;
+  bool velocity_tracked = false;
+
+  Pose3d predict(double timestamp_s) const;
+  /// Seconds since the last frame (timestamps scaled by deskew.seconds_per_timestamp).
+  double frameInterval(double timestamp_s) const;
+  void checkIndex(std::size_t frame_index);
+  void commitPose(const OdometryFrameResult& result);
+  OdometryFrameResult
+  skip(double timestamp_s, std::size_t frame_index, const std::string& reason);
+  /// Everything the steps of one frame's tracking share.
+  struct Frame
+  {
+    explicit Frame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud)
+        : input_ptr(cloud), input(*cloud)
+    {}
+    const odometry_detail::Clock::time_point start = odometry_detail::Clock::now();
+    pcl::PointCloud<pcl::PointXYZI>::ConstPtr input_ptr;
+    const pcl::PointCloud<pcl::PointXYZI>& input;
+    Pose3d T_world_prior = Pose3d::Identity();        ///< constant-velocity prediction
+    Pose3d T_motion_prior = Pose3d::Identity();       ///< its motion from the last frame
+    double dt = 0.1;                                  ///< frameInterval [s]
+    std::optional<odometry_detail::PointTimes> times; ///< for the motion compensation
+    std::optional<Twist> xi_sweep; ///< the motion the kept points are compensated with
+    std::shared_ptr<RasterFeatureSet> features;
+    std::vector<int> source_indices; ///< the dense step's source points ...
+    Points3f source;                 ///< ... compensated
+    pcl::PointCloud<pcl::PointXYZI>::ConstPtr kept_cloud; ///< see keptCloud
+  };
+  /// The outcome of trackFeatures.
+  struct FeatureTrack
+  {
+    bool ok = false; ///< passed the feature-consistency check
+    RigidRansacResult ransac;
+    Pose3d T_world_features = Pose3d::Identity();
+    std::string reference = "the key-frame"; ///< what the features were matched with
+    /// Estimates too weak for the check: starts for the hypothesis search.
+    std::vector<Pose3d> weak_estimates;
+  };
+
+  /// One frame, the steps below in order (odometry_tracking.cpp).
+  OdometryFrameResult track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
+                            const std::vector<float>& point_times,
+                            OdometryFrameResult result);
+  /// Steps 1-3: ground removal, raster of the (compensated) non-ground points, ORB.
+  void extractFeatures(Frame& frame, OdometryFrameResult& result);
+  /// Step 4: match the key-frame (else the previous frame, else nearest neighbours) and
+  /// rigid RANSAC.
+  FeatureTrack trackFeatures(const Frame& frame, OdometryFrameResult& result) const;
+  RigidRansacResult fitFeatures(const Frame& frame,
+                                const RasterFeatureSet& target,
+                                const pcl::Correspondences& matches) const;
+  /// The voxelized, subsampled and compensated source points of the dense step.
+  void makeDenseSource(Frame& frame, OdometryFrameResult& result) const;
+  /// Step 5 with features: dense refinement from their estimate, anchored to them
+  /// (strong) or to the prior (weak), and the two cross-checks.
+  void trackDense(const Frame& frame,
+                  const FeatureTrack& track,
+                  OdometryFrameResult& result) const;
+  /// Weak features: a second dense fit from their planar part or the prior, and the
+  /// prior's fit where the scan cannot tell it from theirs.
+  void checkWeakFeatures(const Frame& frame,
+                         const FeatureTrack& track,
+                         DenseResult& dense,
+                         OdometryFrameResult& result) const;
+  /// Step 5 without features: dense ICP from motion hypotheses, accepted when well
+  /// paired, distinct or backed by features; else the prior.
+  void searchHypotheses(const Frame& frame,
+                        const FeatureTrack& track,
+                        OdometryFrameResult& result) const;
+  /// After the search, with a tracked velocity: dense ICP from the prior wins where it
+  /// pairs nearly as well as \a dense or the scan cannot tell the two apart.
+  void keepPriorWhereIndistinct(const DenseResult& dense,
+                                const DenseResult& prior_dense,
+                                OdometryFrameResult& result) const;
+  /// The hypothesis search's result re-fitted from features matched under it, when more
+  /// features pair after (a message part, empty when not).
+  std::string refitFromGuidedFeatures(const Frame& frame,
+                                      DenseResult& dense,
+                                      int& dense_guided_pairs) const;
+  /// Features matched with the key-frame's under a motion: within \a gate_m of where it
+  /// puts them, nearest descriptor, no ratio test.
+  pcl::Correspondences
+  guidedMatches(const Frame& frame, const Pose3d& T_world_lidar, double gate_m) const;
+  int guidedPairs(const Frame& frame, const Pose3d& T_world_lidar) const;
+  bool canGuide(const Frame& frame) const;
+  /// Step 6: the key-frame decision, the young map, the previous-frame reference.
+  void decideKeyFrame(Frame& frame, OdometryFrameResult& result);
+  /// The whole compensated scan, made once and only when a key-frame or the map keeps it.
+  const pcl::PointCloud<pcl::PointXYZI>& keptCloud(Frame& frame,
+                                                   OdometryFrameResult& result) const;
+  /// Step 5b of track: where the estimated motion differs from the previous frame's (a
+  /// stop, a start, a turn), the dense step's source points are compensated with it and
+  /// refined once more from the estimate. When that is kept, \a xi_sweep becomes the
+  /// twist the scan is compensated with (key-frame, young map).
+  void secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
+                        const odometry_detail::PointTimes& times,
+                        const std::vector<int>& source_indices,
+                        double dt,
+                        const Pose3d& T_motion_prior,
+                        OdometryFrameResult& result,
+                        Twist& xi_sweep);
+  /// The points \a indices of \a input compensated with \a xi (params.deskew.bins).
+  pcl::PointCloud<pcl::PointXYZI>::Ptr
+  deskewIndices(const pcl::PointCloud<pcl::PointXYZI>& input,
+                const odometry_detail::PointTimes& times,
+                const pcl::Indices& indices,
+                const Twist& xi) const;
+  /// Step 5c of track: the scan that started the map was used as it was (no motion
+  /// before it). Once the next frame's motion is known, the local map is rebuilt from
+  /// that scan compensated with it (the key-frame's own stored cloud stays as it was).
+  void rebuildMapFromFirstScan(OdometryFrameResult& result);
+  /// The times to compensate \a input with (params.deskew): the given ones (processFrame
+  /// passes only usable ones), times from the azimuth, or none.
+  std::optional<odometry_detail::PointTimes>
+  sweepTimes(const pcl::PointCloud<pcl::PointXYZI>& input,
+             const std::vector<float>& given,
+             double frame_interval_s,
+             std::string& source) const;
+  KeyFrame::Ptr makeKeyFrame(const OdometryFrameResult& result,
+                             RasterFeatureSet&& features,
+                             const pcl::PointCloud<pcl::PointXYZI>& cloud);
+  void insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                     const Pose3d& T_world_lidar);
+};
+
+} // namespace rast
+} // namespace pcl

@@ -1,0 +1,450 @@
+/// \file odometry_tracking.cpp
+/// \brief Odometry::Impl::track, the paper's tracking figure in named steps:
+/// motion compensation -> ground removal, raster and ORB (extractFeatures) -> match the
+/// key-frame and RANSAC (trackFeatures) -> dense refinement against the local map from
+/// the feature estimate (trackDense) or, when the features fail, from several motion
+/// hypotheses (searchHypotheses, odometry_hypotheses.cpp) -> key-frame decision
+/// (decideKeyFrame).
+
+#include "odometry_impl.h"
+
+#include <algorithm>
+#include <cmath>
+#include <pcl/common/io.h>
+#include <pcl/registration/hamming_correspondence_estimation.h>
+
+namespace pcl {
+namespace rast {
+
+using namespace odometry_detail;
+
+/// The motion from \a T_world_last with the features' planar part (x, y, yaw in the
+/// last scan's frame, which top-down raster features measure well) and the prior's
+/// height, roll and pitch (which max-height pixels of few inliers do not).
+Pose3d
+odometry_detail::planarFromFeatures(const Pose3d& T_world_last,
+                                    const Pose3d& T_world_features,
+                                    const Pose3d& T_world_prior)
+{
+  const Pose3d d_f = T_world_last.inverse() * T_world_features;
+  const Pose3d d_p = T_world_last.inverse() * T_world_prior;
+  const double yaw_f = std::atan2(d_f.rotation()(1, 0), d_f.rotation()(0, 0));
+  const double yaw_p = std::atan2(d_p.rotation()(1, 0), d_p.rotation()(0, 0));
+  Pose3d d = d_p; // the prior, turned to the features' heading and moved to their x, y
+  d.linear() =
+      Eigen::AngleAxisd(yaw_f - yaw_p, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
+      d_p.rotation();
+  d.translation().x() = d_f.translation().x();
+  d.translation().y() = d_f.translation().y();
+  return T_world_last * d;
+}
+
+OdometryFrameResult
+Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr,
+                      const std::vector<float>& point_times,
+                      OdometryFrameResult result)
+{
+  Frame frame(input_ptr);
+  frame.T_world_prior = predict(result.timestamp_s);
+  result.T_world_lidar = frame.T_world_prior;
+  result.reference_keyframe = keyframe ? keyframe->id : 0;
+
+  // 0. Enough finite points within the range limits? (Ground removal and raster skip
+  //    non-finite points themselves; the range limits apply to the dense steps.)
+  const RangeFilter in_range(params.min_range_m, params.max_range_m);
+  const std::size_t num_usable = countInRange(frame.input, in_range);
+  if (num_usable < 10) {
+    result.status = TrackingStatus::kSkipped;
+    result.degraded = true;
+    result.message = "no usable points (" + std::to_string(num_usable) + " of " +
+                     std::to_string(frame.input.size()) +
+                     " finite and in range): constant-velocity prediction";
+    return result;
+  }
+  // 0b. Motion compensation (deskew.h) with the previous frame's motion. Every step
+  //     below uses compensated points: the non-ground points (raster, features) and the
+  //     dense step's source points right away, the whole scan only when a key-frame or
+  //     the local map keeps it (keptCloud).
+  auto start = Clock::now();
+  frame.dt = frameInterval(result.timestamp_s);
+  if (auto times = sweepTimes(frame.input, point_times, frame.dt, result.deskew_times))
+    frame.times.emplace(std::move(*times)); // (PointTimes refers to the cloud)
+  frame.T_motion_prior = T_world_last.inverse() * frame.T_world_prior;
+  if (frame.times && num_poses >= 2)
+    frame.xi_sweep = logSE3(frame.T_motion_prior) / frame.dt;
+  result.timings.deskew_ms = msSince(start);
+
+  extractFeatures(frame, result); // 1-3
+
+  // The first usable frame starts the map.
+  if (!keyframe) {
+    if (frame.times) {
+      first_scan = input_ptr;
+      first_times = frame.times->all();
+      T_world_first = result.T_world_lidar;
+      t_first = result.timestamp_s;
+    }
+    result.status = TrackingStatus::kFirstFrame;
+    result.message = "first frame: key-frame 0";
+    start = Clock::now();
+    result.keyframe = makeKeyFrame(result, std::move(*frame.features), frame.input);
+    result.reference_keyframe = result.keyframe->id;
+    result.timings.keyframe_ms = msSince(start);
+    result.timings.total_ms = msSince(frame.start);
+    return result;
+  }
+
+  const FeatureTrack feature_track = trackFeatures(frame, result); // 4
+
+  // 5. Dense refinement against the local map, from the feature estimate; the
+  //    feature-consistency check falls back to dense ICP from the prior, then to the
+  //    prior itself.
+  start = Clock::now();
+  if (params.registration.refine || !feature_track.ok)
+    makeDenseSource(frame, result);
+  if (feature_track.ok)
+    trackDense(frame, feature_track, result);
+  else
+    searchHypotheses(frame, feature_track, result);
+  result.timings.refine_ms = msSince(start);
+
+  // 5b. Second pass of the motion compensation with the estimated motion; 5c. the local
+  //     map rebuilt from the first scan, compensated, once its motion is known.
+  if (frame.xi_sweep && result.refined && !frame.source_indices.empty())
+    secondDeskewPass(frame.input,
+                     *frame.times,
+                     frame.source_indices,
+                     frame.dt,
+                     frame.T_motion_prior,
+                     result,
+                     *frame.xi_sweep);
+  if (first_scan)
+    rebuildMapFromFirstScan(result);
+
+  decideKeyFrame(frame, result); // 6
+  result.timings.total_ms = msSince(frame.start);
+  return result;
+}
+
+void
+Odometry::Impl::extractFeatures(Frame& frame, OdometryFrameResult& result)
+{
+  // 1. Ground removal (paper sec. 4), optionally levelling the non-ground cloud. On the
+  //    raw scan: the sweep's motion moves ground points along the ground plane, and
+  //    only the plane is kept.
+  auto start = Clock::now();
+  ground.setInputCloud(frame.input_ptr);
+  pcl::Indices non_ground_indices;
+  ground.filter(non_ground_indices);
+  result.ground_found = ground.groundFound();
+  result.timings.ground_ms = msSince(start);
+  // The levelled frame, where the sensor is tilted (params.ground.level_cloud).
+  const Eigen::Isometry3f T_level_lidar = ground.getLevellingTransform();
+  const bool levelled = params.ground.level_cloud && result.ground_found &&
+                        !T_level_lidar.isApprox(Eigen::Isometry3f::Identity());
+  // The non-ground points, compensated (one copy of them either way), then levelled.
+  start = Clock::now();
+  pcl::PointCloud<pcl::PointXYZI>::Ptr non_ground;
+  if (frame.xi_sweep) {
+    non_ground =
+        deskewIndices(frame.input, *frame.times, non_ground_indices, *frame.xi_sweep);
+    result.timings.deskew_ms += msSince(start);
+  } else {
+    non_ground = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    pcl::copyPointCloud(frame.input, non_ground_indices, *non_ground);
+    result.timings.ground_ms += msSince(start);
+  }
+  if (levelled)
+    for (auto& p : non_ground->points)
+      p.getVector3fMap() = T_level_lidar.linear() * p.getVector3fMap();
+
+  // 2-3. Raster of the non-ground points and ORB features (sec. 5-6).
+  frame.features = std::make_shared<RasterFeatureSet>();
+  if (!non_ground->empty()) {
+    orb.setInputCloud(non_ground);
+    const OrbRasterFeatureResult orb_result = orb.compute(*frame.features);
+    result.timings.raster_ms = orb_result.raster_ms;
+    result.timings.orb_ms = orb_result.detect_ms + orb_result.describe_ms;
+    // Features of a levelled raster go back to the LiDAR frame.
+    if (levelled) {
+      const Eigen::Isometry3f T_lidar_level = T_level_lidar.inverse();
+      for (auto& p : frame.features->points)
+        p.getVector3fMap() = T_lidar_level * p.getVector3fMap();
+    }
+  }
+  result.num_features = static_cast<int>(frame.features->size());
+}
+
+RigidRansacResult
+Odometry::Impl::fitFeatures(const Frame& frame,
+                            const RasterFeatureSet& target,
+                            const pcl::Correspondences& matches) const
+{
+  return matches.size() >= 3 ? estimateRigidRansac(frame.features->points,
+                                                   target.points,
+                                                   matches,
+                                                   params.registration.ransac)
+                             : RigidRansacResult();
+}
+
+Odometry::Impl::FeatureTrack
+Odometry::Impl::trackFeatures(const Frame& frame, OdometryFrameResult& result) const
+{
+  // 4. Match the last key-frame's features (no spatial gate by default: large motion
+  //    must track), rigid RANSAC, eq. 4 on the inliers (sec. 7.1-7.2).
+  const auto start = Clock::now();
+  const RasterFeatureSet& features = *frame.features;
+  const RasterFeatureSet& kf_features = keyframe->features;
+  const Pose3d T_keyframe_prior = T_world_keyframe.inverse() * frame.T_world_prior;
+  FeatureTrack track;
+  // One distance pass gives the ratio-tested matches and, for the re-match below, every
+  // feature's nearest neighbour.
+  pcl::Correspondences kf_matches, kf_nearest;
+  if (features.size() >= 3 && kf_features.size() >= 3)
+    kf_matches = matchHamming(features,
+                              kf_features,
+                              params.registration.matching,
+                              T_keyframe_prior,
+                              &kf_nearest);
+  result.num_matches = static_cast<int>(kf_matches.size());
+  track.ransac = fitFeatures(frame, kf_features, kf_matches);
+  result.num_inliers = inliersOf(track.ransac);
+  track.ok = result.num_inliers >= params.min_feature_inliers;
+  track.T_world_features = T_world_keyframe * track.ransac.T_target_source;
+  // Estimates too weak for the consistency check are still hypotheses for the dense
+  // search (under large motion they are often right, with 5-14 inliers).
+  auto keepWeak = [&](const RigidRansacResult& r, const Pose3d& T_world_reference) {
+    if (static_cast<int>(r.inlier_indices.size()) >= params.turn_search.min_weak_inliers)
+      track.weak_estimates.push_back(T_world_reference * r.T_target_source);
+  };
+  keepWeak(track.ransac, T_world_keyframe);
+  if (!track.ok && last_features && features.size() >= 3 && last_features->size() >= 3) {
+    // Too far from the key-frame: the previous frame is closer.
+    const pcl::Correspondences matches =
+        matchHamming(features,
+                     *last_features,
+                     params.registration.matching,
+                     T_world_last_features.inverse() * frame.T_world_prior);
+    const RigidRansacResult last = fitFeatures(frame, *last_features, matches);
+    keepWeak(last, T_world_last_features);
+    if (inliersOf(last) >= params.min_feature_inliers) {
+      track.ok = true;
+      track.T_world_features = T_world_last_features * last.T_target_source;
+      result.num_matches = static_cast<int>(matches.size());
+      track.ransac = last;
+      track.reference = "the previous frame";
+      // num_inliers stays the count with the key-frame ("points in common").
+    }
+  }
+  if (params.loose_rematch && inliersOf(track.ransac) < params.strong_feature_inliers) {
+    // Weak: the key-frame's nearest-neighbour matches alone; RANSAC sorts them out.
+    const RigidRansacResult nearest = fitFeatures(frame, kf_features, kf_nearest);
+    keepWeak(nearest, T_world_keyframe);
+    if (inliersOf(nearest) > inliersOf(track.ransac) &&
+        inliersOf(nearest) >= params.min_feature_inliers) {
+      track.ok = true;
+      track.T_world_features = T_world_keyframe * nearest.T_target_source;
+      result.num_matches = static_cast<int>(kf_nearest.size());
+      result.num_inliers = std::max(result.num_inliers, inliersOf(nearest));
+      track.ransac = nearest;
+      track.reference = "the key-frame (nearest-neighbour matches)";
+    }
+  }
+  result.timings.match_ms = msSince(start);
+  return track;
+}
+
+void
+Odometry::Impl::makeDenseSource(Frame& frame, OdometryFrameResult& result) const
+{
+  // Subsample the voxel indices, then copy only the points kept.
+  const RangeFilter in_range(params.min_range_m, params.max_range_m);
+  frame.source_indices = strideSubsample(
+      voxelDownsampleIndices(frame.input, params.dense.source_voxel_size_m, in_range),
+      static_cast<std::size_t>(params.dense.max_source_points));
+  if (frame.xi_sweep) {
+    const auto t0 = Clock::now();
+    frame.source = toPoints(
+        *deskewIndices(frame.input, *frame.times, frame.source_indices, *frame.xi_sweep));
+    result.timings.deskew_ms += msSince(t0);
+  } else {
+    frame.source = toPoints(frame.input, frame.source_indices);
+  }
+}
+
+void
+Odometry::Impl::trackDense(const Frame& frame,
+                           const FeatureTrack& track,
+                           OdometryFrameResult& result) const
+{
+  const int inliers = static_cast<int>(track.ransac.inlier_indices.size());
+  result.status = TrackingStatus::kFeatures;
+  result.T_world_lidar = track.T_world_features;
+  result.message =
+      "features: " + std::to_string(inliers) + " inliers with " + track.reference;
+  if (!params.registration.refine)
+    return;
+  // Along the directions the scan does not constrain (a corridor's axis, an open field's
+  // x, y and yaw) strong features set the pose; weak ones (a few posts of a guard rail,
+  // a passing car) do not, the constant-velocity prior does.
+  const bool strong = inliers >= params.strong_feature_inliers;
+  const Pose3d& T_world_anchor = strong ? track.T_world_features : frame.T_world_prior;
+  DenseResult dense = registerToMap(
+      frame.source, map, track.T_world_features, params.dense, {0.0, &T_world_anchor});
+  if (!strong)
+    checkWeakFeatures(frame, track, dense, result);
+  keepDenseStats(dense, result);
+  if (!dense.success) {
+    result.degraded = true;
+    result.message +=
+        "; refinement failed, feature estimate kept (" + dense.message + ")";
+    return;
+  }
+  result.T_world_lidar = dense.T_world_lidar;
+  result.refined = true;
+  result.message += "; " + dense.message;
+  // The other way round: dense ICP must not slide away from strong features along a
+  // direction where the scan hardly sees a difference (the local map's planes along a
+  // corridor, cars driving beside). There the features' planar motion stands; height,
+  // roll and pitch stay dense ICP's. A slide, not the centimetres dense ICP refines
+  // features by (their pixels).
+  if (strong && moved(dense.T_world_lidar, track.T_world_features, 0.1, 0.5) &&
+      denseSeparation(dense, track.T_world_features) < params.indistinct_residual_m) {
+    result.T_world_lidar =
+        planarFromFeatures(T_world_last, track.T_world_features, dense.T_world_lidar);
+    result.message +=
+        "; its slide from the features is indistinct: their planar motion kept";
+  }
+  if (dense.degenerate_directions > 0) {
+    result.degraded = true;
+    result.message += strong ? " (from the features)" : " (from the prior)";
+  }
+}
+
+void
+Odometry::Impl::checkWeakFeatures(const Frame& frame,
+                                  const FeatureTrack& track,
+                                  DenseResult& dense,
+                                  OdometryFrameResult& result) const
+{
+  // Weak features: their height, roll and pitch come from max-height pixels of few
+  // inliers (a 16-beam scan: decimetres off; 2 Hz: up to ~2 deg of pitch), from where
+  // the dense step can settle in a wrong minimum. A second dense fit starts from the
+  // features' planar motion with the prior's height, roll and pitch (near the prior, a
+  // level mount) or from the prior itself; the better paired one wins.
+  const Pose3d& T_world_prior = frame.T_world_prior;
+  const DenseOptions anchored{0.0, &T_world_prior};
+  const Pose3d prior_diff = T_world_prior.inverse() * track.T_world_features;
+  const bool near_prior = prior_diff.translation().norm() <= params.prior_gate_m &&
+                          angleDeg(prior_diff) <= params.prior_gate_deg;
+  const bool second_from_features = near_prior && !params.ground.level_cloud;
+  const Pose3d T_second =
+      second_from_features
+          ? planarFromFeatures(T_world_last, track.T_world_features, T_world_prior)
+          : T_world_prior;
+  const DenseResult second =
+      registerToMap(frame.source, map, T_second, params.dense, anchored);
+  // Far from a tracked prior, weak features are as likely aliased (guard-rail posts
+  // every 2.7 m passed at 2.7 m a frame) as right: there the prior's fit wins unless the
+  // features' pairs clearly more (kPriorPairsShare).
+  const bool prior_nearly_as_good =
+      !near_prior && velocity_tracked && second.success && dense.success &&
+      second.num_correspondences >= kPriorPairsShare * dense.num_correspondences;
+  if (second.success &&
+      (!dense.success || second.num_correspondences > dense.num_correspondences ||
+       prior_nearly_as_good)) {
+    dense = second;
+    if (!near_prior) {
+      result.status = TrackingStatus::kDenseFallback;
+      result.degraded = true;
+      result.message = "weak features disagree with the prior: dense from the prior";
+    } else {
+      result.message += " (dense from their planar part fitted better)";
+    }
+  }
+  // Cross-check: weak features must not drag the dense step along a direction the scan
+  // hardly constrains. Dense from the prior as well; where the scan cannot tell the two
+  // results apart, the prior's wins.
+  if (!dense.success || !second_from_features)
+    return;
+  const DenseResult from_prior =
+      registerToMap(frame.source, map, T_world_prior, params.dense, anchored);
+  // 2 cm / 0.1 deg: below the range noise a choice changes nothing.
+  if (from_prior.success &&
+      moved(dense.T_world_lidar, from_prior.T_world_lidar, 0.02, 0.1) &&
+      denseSeparation(from_prior, dense.T_world_lidar) < params.indistinct_residual_m) {
+    dense = from_prior;
+    result.degraded = true;
+    result.message += " (the scan does not tell the weak features' slide from the "
+                      "prior: dense from the prior)";
+  }
+}
+
+const pcl::PointCloud<pcl::PointXYZI>&
+Odometry::Impl::keptCloud(Frame& frame, OdometryFrameResult& result) const
+{
+  // The whole compensated scan, made once and only when a key-frame or the map keeps it.
+  if (!frame.kept_cloud) {
+    const auto t0 = Clock::now();
+    frame.kept_cloud =
+        frame.xi_sweep
+            ? deskewCloud(
+                  frame.input, frame.times->all(), *frame.xi_sweep, params.deskew.bins)
+            : frame.input_ptr;
+    result.timings.deskew_ms += msSince(t0);
+  }
+  return *frame.kept_cloud;
+}
+
+void
+Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
+{
+  // 6. Key-frame decision: the paper's rule (sec. 7.3) plus safety rules. The pose is
+  //    final here; it is kept on SO(3) (single-precision steps add ~1e-7 each).
+  const auto start = Clock::now();
+  if (!result.T_world_lidar.matrix().allFinite()) {
+    // A degenerate solve must not reach the map and the pose graph: predict instead.
+    result.T_world_lidar = frame.T_world_prior;
+    result.status = TrackingStatus::kConstantVelocity;
+    result.degraded = true;
+    result.message += "; non-finite estimate: constant-velocity prediction";
+  }
+  result.T_world_lidar = normalizedPose(result.T_world_lidar);
+  result.T_keyframe_lidar =
+      composePoses(T_world_keyframe.inverse(), result.T_world_lidar);
+  const bool tracked =
+      result.status == TrackingStatus::kFeatures ||
+      (result.status == TrackingStatus::kDenseFallback && result.refined);
+  const int frames_since = frames_since_keyframe + 1;
+  const bool paper_rule = frames_since >= params.keyframe_min_frames &&
+                          result.num_inliers <= params.keyframe_max_common_points;
+  const bool far =
+      result.T_keyframe_lidar.translation().norm() > params.keyframe_max_distance_m ||
+      angleDeg(result.T_keyframe_lidar) > params.keyframe_max_rotation_deg;
+  const bool useful = result.num_features >= params.keyframe_min_inliers;
+  const bool weak = result.num_inliers < params.keyframe_min_inliers && useful;
+  const bool reanchor = frames_without_tracking + 1 >= kReanchorAfterFrames && useful;
+  if ((tracked && (paper_rule || far || weak)) || reanchor) {
+    result.keyframe =
+        makeKeyFrame(result, std::move(*frame.features), keptCloud(frame, result));
+    result.reference_keyframe = result.keyframe->id;
+    result.T_keyframe_lidar = Pose3d::Identity();
+    if (!tracked) {
+      result.degraded = true;
+      result.message += "; re-anchored: new key-frame after a stretch without tracking";
+    }
+  }
+  if (!result.keyframe && tracked && result.refined &&
+      map_scans < params.dense.young_map_scans)
+    insertIntoMap(keptCloud(frame, result), result.T_world_lidar);
+  result.timings.keyframe_ms = msSince(start);
+  if (tracked && !result.keyframe) {
+    last_features = frame.features;
+    T_world_last_features = result.T_world_lidar;
+  } else if (result.keyframe) {
+    last_features.reset(); // the key-frame itself is now the closest reference
+  }
+}
+
+} // namespace rast
+} // namespace pcl
