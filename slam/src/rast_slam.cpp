@@ -283,6 +283,8 @@ struct RastSlam::Impl
   {
     if (p.loop_closing.global_bundle_adjustment)
       map->setKeepCulledMapPoints(true);
+    // The map owns the key-frame poses; the loop database reads them there.
+    detector.setPoseSource([map = map] { return map->keyFramePoses(); });
     if (!p.deterministic) {
       mapping_thread = std::thread([this] { runMapping(); });
       loop_thread = std::thread([this] { runLoopClosing(); });
@@ -527,9 +529,7 @@ struct RastSlam::Impl
       std::lock_guard<std::mutex> lock(stats_mutex);
       global_ba_ms.push_back(msSince(ba_start));
     }
-    map->applyLoopCorrection(corrected);
-    // The detector searches around the corrected poses from now on.
-    detector.updatePoses(map->keyFramePoses());
+    map->applyLoopCorrection(corrected); // the detector reads the corrected poses
     std::lock_guard<std::mutex> lock(stats_mutex);
     pose_graph_ms.push_back(msSince(start));
     inconsistent += dropped.size();

@@ -15,6 +15,7 @@
 #include <pcl/registration/point_to_plane_refinement.h>
 #include <pcl/segmentation/sac_ground_removal.h>
 #include <pcl/simulation/lidar_simulator.h>
+#include <pcl/slam/keyframe_database.h>
 #include <pcl/slam/loop_detector.h>
 #include <pcl/io/pose_io.h>
 
@@ -419,6 +420,49 @@ bareKeyFrame(KeyFrameId id)
   auto kf = std::make_shared<KeyFrame>();
   kf->id = id;
   return kf;
+}
+
+TEST(KeyFrameDatabase, ReadsPosesFromTheirOwner)
+{
+  LoopDetectorParams params;
+  params.min_keyframe_gap = 2;
+  params.min_travel_gap_m = 30.0;
+  params.dense_check = false;
+  params.retrieval = AppearanceRetrieval::kNone;
+  // The owner of the poses (SlamMap in the SLAM): the database reads, never copies.
+  PoseVector owner = {Pose3d::Identity(), yawPose(0.0, {1.0, 0.0, 0.0}),
+                      yawPose(180.0, {40.0, 0.0, 0.0})};
+  pcl::rast::KeyFrameDatabase db(params);
+  db.setPoseSource([&owner] { return owner; });
+  db.add(bareKeyFrame(0), owner[0]);
+  db.add(bareKeyFrame(1), owner[1]);
+  db.skip(*bareKeyFrame(2), owner[2]);
+  const auto query = bareKeyFrame(3);
+  EXPECT_EQ(db.covering(*query, yawPose(10.0, {0.3, 0.5, 0.0}), 3.0, 30.0), KeyFrameId(0));
+  // The owner corrects key-frame 0 (a loop closure): the database sees it at once.
+  owner[0] = yawPose(0.0, {20.0, 0.0, 0.0});
+  EXPECT_TRUE(db.pose(0).isApprox(owner[0]));
+  EXPECT_EQ(db.covering(*query, yawPose(10.0, {0.3, 0.5, 0.0}), 3.0, 30.0), KeyFrameId(1));
+  double travel_m = 0.0;
+  const auto retrieved = db.retrieve(*query, yawPose(0.0, {19.5, 0.0, 0.0}), travel_m);
+  ASSERT_EQ(retrieved.size(), 1u);
+  EXPECT_EQ(retrieved[0].candidate.keyframe, KeyFrameId(0));
+  EXPECT_EQ(retrieved[0].candidate.source, LoopCandidateSource::kDistance);
+  EXPECT_NEAR(retrieved[0].candidate.distance_m, 0.5, 1e-9);
+  EXPECT_TRUE(retrieved[0].T_world_keyframe.isApprox(owner[0]));
+  // Travel: 1 m to key-frame 1, 39 m to the skipped 2, 20.5 m back to the query.
+  EXPECT_NEAR(travel_m, 1.0 + 39.0 + 20.5, 1e-9);
+  EXPECT_NEAR(retrieved[0].travel_m, 0.0, 1e-12);
+  // Ids the owner does not know yet fall back to the pose given when added.
+  owner.resize(1);
+  EXPECT_TRUE(db.pose(1).isApprox(yawPose(0.0, {1.0, 0.0, 0.0})));
+  // Through LoopDetector, the same.
+  LoopDetector detector(params);
+  PoseVector map_poses = {Pose3d::Identity()};
+  detector.setPoseSource([&map_poses] { return map_poses; });
+  detector.addKeyFrame(bareKeyFrame(0), map_poses[0]);
+  map_poses[0] = yawPose(0.0, {5.0, 0.0, 0.0});
+  EXPECT_TRUE(detector.pose(0).isApprox(map_poses[0]));
 }
 
 TEST(LoopDetector, CoveringKeyFrameIsAnEarlierNeighbourAtASimilarHeading)

@@ -1,0 +1,530 @@
+/// \file keyframe_database.cpp
+/// \brief The key-frame database of loop closing: the appearance index (multi-index
+/// hashing of the ORB descriptors), eligibility by key-frames and distance travelled,
+/// dense-check targets, and candidate retrieval by distance and appearance.
+
+#include <pcl/slam/keyframe_database.h>
+
+#include <algorithm>
+#include <cmath>
+#include <mutex>
+#include <stdexcept>
+
+namespace pcl {
+namespace rast {
+
+namespace {
+
+constexpr double kDegPerRad = 180.0 / 3.14159265358979323846;
+constexpr double kDenseResolutionM = 0.01; // int16: +-327 m, far beyond the crop radius
+
+/// The 16-bit substring \a table of a descriptor, as a key of the inverted index.
+std::uint32_t
+substringKey(const OrbDescriptor& d, int table)
+{
+  const auto lo = static_cast<std::uint32_t>(d[2 * table]);
+  const auto hi = static_cast<std::uint32_t>(d[2 * table + 1]);
+  return (static_cast<std::uint32_t>(table) << KeyFrameDatabase::kSubstringBits) | (hi << 8) | lo;
+}
+
+double
+rotationDeg(const Pose3d& T)
+{
+  return Eigen::AngleAxisd(T.rotation()).angle() * kDegPerRad;
+}
+
+/// Motion between consecutive key-frames: the tracking's relative pose when \a kf
+/// directly follows the key-frame at \a T_world_previous, else the pose difference.
+double
+stepLength(const KeyFrame& kf,
+           const Pose3d& T_world_kf,
+           KeyFrameId previous_id,
+           const Pose3d& T_world_previous)
+{
+  if (kf.id == previous_id + 1 && !kf.T_previous_keyframe.isApprox(Pose3d::Identity()))
+    return kf.T_previous_keyframe.translation().norm();
+  return (T_world_kf.translation() - T_world_previous.translation()).norm();
+}
+
+} // namespace
+
+/// \a cloud voxelized at \a voxel_m and cropped to \a radius_m around the sensor (x-y).
+PointVector
+KeyFrameDatabase::croppedCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud, double voxel_m, double radius_m)
+{
+  PointVector points = voxelDownsample(toPointVector(cloud), voxel_m);
+  const double r_sq = radius_m * radius_m;
+  points.erase(std::remove_if(points.begin(),
+                              points.end(),
+                              [r_sq](const Eigen::Vector3d& p) {
+                                return p.head<2>().squaredNorm() > r_sq;
+                              }),
+               points.end());
+  return points;
+}
+
+/// The dense check's target points of a key-frame, quantized (6 bytes a point).
+std::vector<KeyFrameDatabase::DensePoint>
+KeyFrameDatabase::makeDenseTarget(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                          const LoopDetectorParams& params)
+{
+  const PointVector points =
+      croppedCloud(cloud, params.dense.target_voxel_size_m, params.dense_crop_radius_m);
+  std::vector<DensePoint> out;
+  out.reserve(points.size());
+  for (const Eigen::Vector3d& p : points) {
+    const Eigen::Vector3d q = (p / kDenseResolutionM).array().round();
+    if ((q.array().abs() <= 32767.0).all())
+      out.push_back({static_cast<std::int16_t>(q.x()),
+                     static_cast<std::int16_t>(q.y()),
+                     static_cast<std::int16_t>(q.z())});
+  }
+  return out;
+}
+
+PointVector
+KeyFrameDatabase::decodeDense(const std::vector<DensePoint>& points)
+{
+  PointVector out;
+  out.reserve(points.size());
+  for (const DensePoint& q : points)
+    out.emplace_back(q[0] * kDenseResolutionM, q[1] * kDenseResolutionM, q[2] * kDenseResolutionM);
+  return out;
+}
+
+KeyFrameDatabase::KeyFrameDatabase(const LoopDetectorParams& params, BlobStore::Ptr dense_store)
+  : params_(params)
+  , dense_store_(dense_store ? std::move(dense_store) : std::make_shared<BlobStore>())
+{}
+
+void
+KeyFrameDatabase::setPoseSource(PoseSource source)
+{
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  pose_source_ = std::move(source);
+}
+
+KeyFrameDatabase::~KeyFrameDatabase() = default;
+
+std::size_t
+KeyFrameDatabase::size() const
+{
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return entries_.size();
+}
+
+std::size_t
+KeyFrameDatabase::numSkipped() const
+{
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  return skipped_;
+}
+
+Pose3d
+KeyFrameDatabase::pose(KeyFrameId id) const
+{
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  const auto it = slot_of_.find(id);
+  if (it == slot_of_.end())
+    throw std::invalid_argument("KeyFrameDatabase::pose: unknown key-frame id " +
+                                std::to_string(id));
+  return poseOf(id, entries_[it->second].T_world_keyframe, snapshot());
+}
+
+void
+KeyFrameDatabase::add(const KeyFrame::ConstPtr& keyframe,
+                          const Pose3d& T_world_keyframe)
+{
+  if (!keyframe)
+    throw std::invalid_argument("KeyFrameDatabase::add: null key-frame");
+  if (keyframe->features.points.size() != keyframe->features.descriptors.size())
+    throw std::invalid_argument(
+        "KeyFrameDatabase::add: key-frame " + std::to_string(keyframe->id) + " has " +
+        std::to_string(keyframe->features.points.size()) + " feature points but " +
+        std::to_string(keyframe->features.descriptors.size()) + " descriptors");
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  if (slot_of_.count(keyframe->id))
+    throw std::invalid_argument("KeyFrameDatabase::add: key-frame id " +
+                                std::to_string(keyframe->id) +
+                                " is already in the database");
+  Entry entry;
+  entry.keyframe = keyframe;
+  entry.T_world_keyframe = T_world_keyframe;
+  entry.travel_m = advanceTail(*keyframe, T_world_keyframe);
+  if (params_.dense_check && keyframe->cloud)
+    entry.dense_target = dense_store_->putVector(makeDenseTarget(*keyframe->cloud, params_));
+  entry.first_feature = static_cast<std::uint32_t>(feature_slot_.size());
+  index(*keyframe, static_cast<std::uint32_t>(entries_.size()));
+  slot_of_.emplace(keyframe->id, entries_.size());
+  entries_.push_back(std::move(entry));
+}
+
+void
+KeyFrameDatabase::index(const KeyFrame& keyframe, std::uint32_t slot)
+{
+  if (params_.retrieval != AppearanceRetrieval::kNone) {
+    for (const auto& d : keyframe.features.descriptors) {
+      const auto g = static_cast<std::uint32_t>(feature_slot_.size());
+      feature_slot_.push_back(slot);
+      for (int t = 0; t < params_.num_hash_tables; ++t) {
+        Bucket& bucket = buckets_[substringKey(d, t)];
+        if (bucket.saturated)
+          continue;
+        bucket.features.push_back(g);
+        // A bucket past max_bucket_size is never read again (retrieval skips buckets
+        // larger than the cap, and buckets only grow), so its list is dropped. In a
+        // simulated town ~60 % of the postings would land in such buckets.
+        if (params_.max_bucket_size > 0 &&
+            bucket.features.size() > static_cast<std::size_t>(params_.max_bucket_size)) {
+          bucket.saturated = true;
+          bucket.features = std::vector<std::uint32_t>();
+        }
+      }
+    }
+  }
+}
+
+KeyFrameDatabase::MemoryUsage
+KeyFrameDatabase::memoryUsage() const
+{
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  MemoryUsage m;
+  for (const Entry& e : entries_)
+    (dense_store_->spilled() ? m.dense_targets_on_disk : m.dense_targets) += e.dense_target.bytes;
+  m.appearance_index = feature_slot_.capacity() * sizeof(std::uint32_t);
+  // unordered_map node (key, vector, next pointer, malloc header) plus its bucket slot.
+  const std::size_t node_bytes =
+      sizeof(std::uint32_t) + sizeof(Bucket) + 2 * sizeof(void*) + sizeof(void*);
+  for (const auto& [key, bucket] : buckets_)
+    m.appearance_index += node_bytes + bucket.features.capacity() * sizeof(std::uint32_t);
+  return m;
+}
+
+void
+KeyFrameDatabase::updatePose(KeyFrameId id, const Pose3d& T_world_keyframe)
+{
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  const auto it = slot_of_.find(id);
+  if (it == slot_of_.end())
+    throw std::invalid_argument("KeyFrameDatabase::updatePose: unknown key-frame id " +
+                                std::to_string(id));
+  entries_[it->second].T_world_keyframe = T_world_keyframe;
+}
+
+void
+KeyFrameDatabase::updatePoses(const PoseVector& T_world_by_id)
+{
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  for (Entry& e : entries_)
+    if (e.keyframe->id < T_world_by_id.size())
+      e.T_world_keyframe = T_world_by_id[e.keyframe->id];
+  if (tail_ && tail_->id < T_world_by_id.size())
+    tail_->T_world_keyframe = T_world_by_id[tail_->id];
+}
+
+// ---------------------------------------------------------------- candidates
+
+PoseVector
+KeyFrameDatabase::snapshot() const
+{
+  return pose_source_ ? pose_source_() : PoseVector();
+}
+
+const Pose3d&
+KeyFrameDatabase::poseOf(KeyFrameId id, const Pose3d& own, const PoseVector& snapshot) const
+{
+  return id < snapshot.size() ? snapshot[id] : own;
+}
+
+double
+KeyFrameDatabase::travelTo(const KeyFrame& query,
+                           const Pose3d& T_world_query,
+                           const PoseVector& snapshot) const
+{
+  if (!tail_)
+    return 0.0;
+  return tail_->travel_m + stepLength(query,
+                                      T_world_query,
+                                      tail_->id,
+                                      poseOf(tail_->id, tail_->T_world_keyframe, snapshot));
+}
+
+double
+KeyFrameDatabase::advanceTail(const KeyFrame& keyframe, const Pose3d& T_world_keyframe)
+{
+  const double travel_m = travelTo(keyframe, T_world_keyframe, snapshot());
+  tail_ = Tail{keyframe.id, T_world_keyframe, travel_m};
+  return travel_m;
+}
+
+void
+KeyFrameDatabase::skip(const KeyFrame& keyframe, const Pose3d& T_world_keyframe)
+{
+  std::unique_lock<std::shared_mutex> lock(mutex_);
+  advanceTail(keyframe, T_world_keyframe);
+  ++skipped_;
+}
+
+std::optional<KeyFrameId>
+KeyFrameDatabase::covering(const KeyFrame& query,
+                               const Pose3d& T_world_query,
+                               double radius_m,
+                               double angle_deg) const
+{
+  if (!(radius_m > 0.0) || !(angle_deg > 0.0))
+    throw std::invalid_argument("KeyFrameDatabase::covering: radius_m (" +
+                                std::to_string(radius_m) + ") and angle_deg (" +
+                                std::to_string(angle_deg) + ") must be positive");
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  const PoseVector poses = snapshot();
+  const std::vector<char> eligible =
+      eligibleSlots(query, travelTo(query, T_world_query, poses));
+  std::optional<KeyFrameId> best;
+  double best_distance = radius_m;
+  for (std::size_t s = 0; s < entries_.size(); ++s) {
+    if (!eligible[s])
+      continue;
+    const Pose3d& T =
+        poseOf(entries_[s].keyframe->id, entries_[s].T_world_keyframe, poses);
+    const double d = (T.translation() - T_world_query.translation()).norm();
+    if (d > best_distance)
+      continue;
+    if (rotationDeg(T.inverse() * T_world_query) > angle_deg)
+      continue;
+    best_distance = d;
+    best = entries_[s].keyframe->id;
+  }
+  return best;
+}
+
+std::vector<char>
+KeyFrameDatabase::eligibleSlots(const KeyFrame& query, double query_travel_m) const
+{
+  std::vector<char> eligible(entries_.size(), 0);
+  for (std::size_t s = 0; s < entries_.size(); ++s) {
+    const auto gap = std::abs(static_cast<std::int64_t>(query.id) -
+                              static_cast<std::int64_t>(entries_[s].keyframe->id));
+    eligible[s] =
+        gap >= params_.min_keyframe_gap &&
+        std::abs(query_travel_m - entries_[s].travel_m) >= params_.min_travel_gap_m;
+  }
+  return eligible;
+}
+
+void
+KeyFrameDatabase::scoreAppearance(const KeyFrame& query,
+                              const std::vector<char>& eligible,
+                              std::vector<double>& votes) const
+{
+  votes.assign(entries_.size(), 0.0);
+  if (params_.retrieval == AppearanceRetrieval::kNone || feature_slot_.empty())
+    return;
+  const std::size_t total = feature_slot_.size();
+  std::size_t max_bucket = std::max<std::size_t>(
+      64,
+      static_cast<std::size_t>(params_.max_bucket_fraction * static_cast<double>(total)));
+  if (params_.max_bucket_size > 0)
+    max_bucket = std::min<std::size_t>(max_bucket, params_.max_bucket_size);
+
+  if (params_.retrieval == AppearanceRetrieval::kSubstringVotes) {
+    // Inverted index: each shared substring votes with weight log(N / n_bucket).
+    for (const auto& q : query.features.descriptors)
+      for (int t = 0; t < params_.num_hash_tables; ++t) {
+        const auto it = buckets_.find(substringKey(q, t));
+        if (it == buckets_.end() || it->second.saturated ||
+            it->second.features.size() > max_bucket)
+          continue;
+        const double w = std::log(static_cast<double>(total) / it->second.features.size());
+        for (const std::uint32_t g : it->second.features)
+          if (eligible[feature_slot_[g]])
+            votes[feature_slot_[g]] += w;
+      }
+    return;
+  }
+
+  // Multi-index hashing: a database descriptor within r bits of q shares at least one
+  // of the m substrings exactly when r < m (pigeonhole), and most of them in practice
+  // for larger r; its full distance then decides. One vote per (query feature,
+  // key-frame). A vote also carries the rotation it implies (difference of the ORB
+  // angles): the votes of a real revisit pile up at one relative yaw.
+  const int bins =
+      params_.rotation_bin_deg > 0.0
+          ? std::max(1, static_cast<int>(std::lround(360.0 / params_.rotation_bin_deg)))
+          : 1;
+  std::vector<float> histogram(entries_.size() * bins, 0.0f);
+  std::vector<std::uint32_t> seen(total, 0);
+  struct Vote
+  {
+    std::uint32_t slot;
+    int distance;
+    int bin;
+  };
+  std::vector<Vote> found;
+  const auto& descriptors = query.features.descriptors;
+  for (std::size_t i = 0; i < descriptors.size(); ++i) {
+    const auto stamp = static_cast<std::uint32_t>(i + 1);
+    found.clear();
+    for (int t = 0; t < params_.num_hash_tables; ++t) {
+      const auto it = buckets_.find(substringKey(descriptors[i], t));
+      if (it == buckets_.end() || it->second.saturated ||
+          it->second.features.size() > max_bucket)
+        continue;
+      for (const std::uint32_t g : it->second.features) {
+        if (seen[g] == stamp)
+          continue;
+        seen[g] = stamp;
+        const std::uint32_t slot = feature_slot_[g];
+        if (!eligible[slot])
+          continue;
+        const Entry& e = entries_[slot];
+        const std::size_t j = g - e.first_feature;
+        const int d =
+            hammingDistance(descriptors[i], e.keyframe->features.descriptors[j]);
+        if (d > params_.retrieval_max_hamming)
+          continue;
+        double dyaw =
+            e.keyframe->features.points[j].angle_deg - query.features.points[i].angle_deg;
+        dyaw -= 360.0 * std::floor(dyaw / 360.0);
+        found.push_back({slot, d, static_cast<int>(dyaw / 360.0 * bins) % bins});
+      }
+    }
+    // One vote per (query feature, key-frame): its nearest descriptor there.
+    std::sort(found.begin(), found.end(), [](const Vote& a, const Vote& b) {
+      return a.slot < b.slot || (a.slot == b.slot && a.distance < b.distance);
+    });
+    for (std::size_t k = 0; k < found.size(); ++k)
+      if (k == 0 || found[k].slot != found[k - 1].slot)
+        histogram[found[k].slot * bins + found[k].bin] += 1.0f;
+  }
+  for (std::size_t s = 0; s < entries_.size(); ++s) {
+    const float* h = &histogram[s * bins];
+    if (bins == 1) {
+      votes[s] = h[0];
+      continue;
+    }
+    float best = 0.0f;
+    for (int b = 0; b < bins; ++b)
+      best = std::max(best, h[(b + bins - 1) % bins] + h[b] + h[(b + 1) % bins]);
+    votes[s] = best;
+  }
+}
+
+std::vector<std::pair<KeyFrameId, int>>
+KeyFrameDatabase::rankByAppearance(const KeyFrame& query, const Pose3d& T_world_query) const
+{
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  std::vector<std::pair<KeyFrameId, int>> ranking;
+  if (params_.retrieval == AppearanceRetrieval::kNone || entries_.empty())
+    return ranking;
+  const auto eligible = eligibleSlots(query, travelTo(query, T_world_query, snapshot()));
+  std::vector<double> votes;
+  scoreAppearance(query, eligible, votes);
+  std::vector<std::pair<double, std::size_t>> order;
+  for (std::size_t s = 0; s < entries_.size(); ++s)
+    if (eligible[s] && votes[s] > 0.0)
+      order.emplace_back(votes[s] / std::sqrt(std::max<std::size_t>(
+                                        1, entries_[s].keyframe->features.size())),
+                         s);
+  std::sort(order.begin(), order.end(), [](const auto& a, const auto& b) {
+    return a.first > b.first;
+  });
+  for (const auto& [score, s] : order)
+    ranking.emplace_back(entries_[s].keyframe->id,
+                         static_cast<int>(std::lround(votes[s])));
+  return ranking;
+}
+
+std::vector<RetrievedKeyFrame>
+KeyFrameDatabase::retrieve(const KeyFrame& query,
+                           const Pose3d& T_world_query,
+                           double& query_travel_m) const
+{
+  std::shared_lock<std::shared_mutex> lock(mutex_);
+  std::vector<RetrievedKeyFrame> out;
+  if (entries_.empty())
+    return out;
+  const PoseVector poses = snapshot();
+  auto poseAt = [&](std::size_t s) -> const Pose3d& {
+    return poseOf(entries_[s].keyframe->id, entries_[s].T_world_keyframe, poses);
+  };
+  query_travel_m = travelTo(query, T_world_query, poses);
+  const auto eligible = eligibleSlots(query, query_travel_m);
+
+  // 1. The paper: key-frames near the query's current estimate, nearest first.
+  std::vector<std::pair<double, std::size_t>> near;
+  for (std::size_t s = 0; s < entries_.size(); ++s) {
+    if (!eligible[s])
+      continue;
+    const double d =
+        (poseAt(s).translation() - T_world_query.translation()).norm();
+    if (d <= params_.search_radius_m)
+      near.emplace_back(d, s);
+  }
+  std::sort(near.begin(), near.end());
+  near.resize(std::min<std::size_t>(near.size(), params_.max_distance_candidates));
+
+  // 2. Beyond the paper: the top-k key-frames by normalised appearance score.
+  std::vector<double> votes;
+  scoreAppearance(query, eligible, votes);
+  std::vector<std::pair<double, std::size_t>> alike;
+  for (std::size_t s = 0; s < entries_.size(); ++s)
+    if (eligible[s] && votes[s] >= params_.min_appearance_score)
+      alike.emplace_back(votes[s] / std::sqrt(std::max<std::size_t>(
+                                        1, entries_[s].keyframe->features.size())),
+                         s);
+  std::sort(alike.begin(), alike.end(), [](const auto& a, const auto& b) {
+    return a.first > b.first || (a.first == b.first && a.second < b.second);
+  });
+  alike.resize(std::min<std::size_t>(alike.size(), params_.max_appearance_candidates));
+
+  // 3. Merge; verify the most promising first: found by both, then by votes, nearest.
+  std::vector<std::size_t> slots;
+  for (const auto& [d, s] : near)
+    slots.push_back(s);
+  for (const auto& [score, s] : alike)
+    if (std::find(slots.begin(), slots.end(), s) == slots.end())
+      slots.push_back(s);
+  for (const std::size_t s : slots) {
+    RetrievedKeyFrame r;
+    r.keyframe = entries_[s].keyframe;
+    r.T_world_keyframe = poseAt(s);
+    r.travel_m = entries_[s].travel_m;
+    r.dense_target = entries_[s].dense_target;
+    LoopCandidate& c = r.candidate;
+    c.keyframe = entries_[s].keyframe->id;
+    c.distance_m =
+        (poseAt(s).translation() - T_world_query.translation()).norm();
+    c.appearance_score = static_cast<int>(std::lround(votes[s]));
+    const bool by_distance = std::any_of(
+        near.begin(), near.end(), [s](const auto& n) { return n.second == s; });
+    const bool by_appearance = std::any_of(
+        alike.begin(), alike.end(), [s](const auto& a) { return a.second == s; });
+    c.source = by_distance && by_appearance ? LoopCandidateSource::kBoth
+               : by_distance                ? LoopCandidateSource::kDistance
+                                            : LoopCandidateSource::kAppearance;
+    out.push_back(std::move(r));
+  }
+  std::stable_sort(out.begin(),
+                   out.end(),
+                   [](const RetrievedKeyFrame& ra, const RetrievedKeyFrame& rb) {
+                     const LoopCandidate& a = ra.candidate;
+                     const LoopCandidate& b = rb.candidate;
+                     const bool a_both = a.source == LoopCandidateSource::kBoth;
+                     const bool b_both = b.source == LoopCandidateSource::kBoth;
+                     if (a_both != b_both)
+                       return a_both;
+                     if (a.appearance_score != b.appearance_score)
+                       return a.appearance_score > b.appearance_score;
+                     return a.distance_m < b.distance_m;
+                   });
+  return out;
+}
+
+PointVector
+KeyFrameDatabase::denseTarget(const RetrievedKeyFrame& retrieved) const
+{
+  return decodeDense(dense_store_->getVector<DensePoint>(retrieved.dense_target));
+}
+
+} // namespace rast
+} // namespace pcl
