@@ -344,8 +344,20 @@ struct RastSlam::Impl
     }
   }
 
+  /// Map points feed the bundle adjustments only (local and global, both off by
+  /// default): without one, local mapping would build them for nothing (doc/slam.md).
+  bool mapPointsUsed() const
+  {
+    return params.local_mapping.enable_bundle_adjustment ||
+           params.loop_closing.global_bundle_adjustment;
+  }
+
   void mapKeyFrame(const KeyFrame::Ptr& kf)
   {
+    if (!mapPointsUsed()) {
+      notify(SlamStage::kLocalMapping, *kf);
+      return;
+    }
     const double cpu0 = threadCpuMs();
     const LocalMappingResult r = local_mapping.processKeyFrame(kf);
     {

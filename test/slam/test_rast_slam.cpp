@@ -155,6 +155,23 @@ TEST(RastSlam, DeterministicModeIsReproducible)
   EXPECT_EQ(a.map_points, b.map_points);
 }
 
+TEST(RastSlam, MapPointsAreBuiltOnlyForABundleAdjustment)
+{
+  // Map points feed the local and the global bundle adjustment and nothing else: with
+  // both off (the default) local mapping does not run and no map point is made.
+  const RunResult plain = runSlam(deterministicParams());
+  EXPECT_EQ(plain.stats.map_points_created, 0u);
+  EXPECT_EQ(plain.stats.timing.at("local_mapping").count, 0u);
+  SlamParams with_ba = deterministicParams();
+  with_ba.local_mapping.enable_bundle_adjustment = true;
+  const RunResult adjusted = runSlam(with_ba);
+  EXPECT_GT(adjusted.stats.map_points_created, 1000u);
+  EXPECT_EQ(adjusted.stats.timing.at("local_mapping").count, adjusted.stats.keyframes);
+  // The tracking and the map do not depend on them.
+  EXPECT_EQ(plain.stats.keyframes, adjusted.stats.keyframes);
+  EXPECT_GT(plain.map_points, 1000u);
+}
+
 TEST(RastSlam, SpillingToDiskChangesNothingButMemory)
 {
   const std::filesystem::path dir = pcl_rast_test::makeTempDir("spill");

@@ -20,9 +20,9 @@ namespace rast {
 /// \brief Settings of LocalMapping.
 struct LocalMappingParams
 {
-  /// Run local bundle adjustment (off: map points are still tracked and culled, and
-  /// key-frame poses stay those of tracking). Default chosen by measurement, see
-  /// doc/slam.md.
+  /// Run local bundle adjustment (off: key-frame poses stay those of tracking). Default
+  /// chosen by measurement, see doc/slam.md. RastSlam runs local mapping (map points)
+  /// only when this or the global bundle adjustment is on: nothing else uses them.
   bool enable_bundle_adjustment = false;
   /// n: the newest n key-frames are optimized (paper 8.1); older ones leave the local
   /// graph (key-frame culling) and map points seen by none of the n are removed.
