@@ -1,0 +1,281 @@
+/// \file point_to_plane_target.cpp
+/// \brief PointToPlaneTarget: a scan prepared once for point-to-plane refinement (voxel
+/// statistics in one pass, a plane per voxel block, the planar points indexed in a voxel
+/// hash map) and its nearest-neighbour search (see doc/registration.md).
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+#include <pcl/registration/point_to_plane_refinement.h>
+#include <pcl/registration/voxel_hash_map.h>
+#include <stdexcept>
+
+namespace pcl {
+namespace rast {
+
+namespace {
+
+Eigen::Array3i
+cellOf(const Eigen::Vector3d& p, double inverse_cell_m)
+{
+  return (p * inverse_cell_m).array().floor().cast<int>();
+}
+
+VoxelKey
+keyOf(const Eigen::Array3i& cell)
+{
+  return packVoxelKey(cell.x(), cell.y(), cell.z());
+}
+
+/// Raw-point statistics of one voxel: count, sum and sum of outer products.
+struct VoxelStats
+{
+  int count = 0;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d sum_outer = Eigen::Matrix3d::Zero();
+  Eigen::Array3i cell;
+};
+
+} // namespace
+
+/// Voxel hash map over the planar points (KISS-ICP style): cell -> [begin, end) into a
+/// cell-sorted index list; nearest neighbours are searched in the 27 cells around.
+struct PointToPlaneTarget::Index
+{
+  double cell_m = 1.0;
+  double inverse_cell_m = 1.0;
+  VoxelHashMap cells;                      // cell -> slot in ranges
+  std::vector<std::pair<int, int>> ranges; // [begin, end) in order
+  std::vector<int> order;                  // point indices sorted by cell
+  // Point coordinates in `order`, float for a compact, cache-friendly scan.
+  std::vector<Eigen::Vector3f, Eigen::aligned_allocator<Eigen::Vector3f>> ordered_points;
+};
+
+PointToPlaneTarget::PointToPlaneTarget() = default;
+PointToPlaneTarget::~PointToPlaneTarget() = default;
+PointToPlaneTarget::PointToPlaneTarget(PointToPlaneTarget&&) noexcept = default;
+PointToPlaneTarget&
+PointToPlaneTarget::operator=(PointToPlaneTarget&&) noexcept = default;
+
+void
+PointToPlaneTarget::buildIndex(double cell_size_m)
+{
+  auto index = std::make_unique<Index>();
+  index->cell_m = cell_size_m;
+  index->inverse_cell_m = 1.0 / cell_size_m;
+  const std::size_t n = points_.size();
+  std::vector<VoxelKey> keys(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const Eigen::Array3i c = cellOf(points_[i], index->inverse_cell_m);
+    keys[i] = keyOf(c);
+  }
+  index->order.resize(n);
+  for (std::size_t i = 0; i < n; ++i)
+    index->order[i] = static_cast<int>(i);
+  std::sort(index->order.begin(), index->order.end(), [&keys](int a, int b) {
+    return keys[a] < keys[b];
+  });
+  index->cells.reset(n);
+  index->ordered_points.resize(n);
+  for (std::size_t k = 0; k < n; ++k) {
+    const int i = index->order[k];
+    index->ordered_points[k] = points_[i].cast<float>();
+    if (k == 0 || keys[i] != keys[index->order[k - 1]]) {
+      index->cells.insert(keys[i], static_cast<int>(index->ranges.size()));
+      index->ranges.emplace_back(static_cast<int>(k), static_cast<int>(k));
+    }
+    index->ranges.back().second = static_cast<int>(k) + 1;
+  }
+  index_ = std::move(index);
+}
+
+void
+PointToPlaneTarget::build(const PointVector& points, const PointToPlaneParams& params)
+{
+  build(points, params, 0);
+}
+
+void
+PointToPlaneTarget::build(const PointVector& points,
+                          const PointToPlaneParams& params,
+                          std::size_t max_planes)
+{
+  std::string why;
+  if (!params.isValid(&why))
+    throw std::invalid_argument("PointToPlaneTarget::build: invalid params: " + why);
+  // 1. Voxel statistics of the raw points in one pass (no per-point neighbour search).
+  const double voxel_m =
+      params.target_voxel_size_m > 0.0 ? params.target_voxel_size_m : 0.3;
+  const double inverse_voxel_m = 1.0 / voxel_m;
+  VoxelHashMap voxel_of_cell;
+  voxel_of_cell.reset(points.size() / 32);
+  std::vector<VoxelStats> voxels;
+  voxels.reserve(points.size() / 4 + 16);
+  for (const auto& p : points) {
+    if (!p.allFinite())
+      continue;
+    const Eigen::Array3i c = cellOf(p, inverse_voxel_m);
+    const auto [v, inserted] =
+        voxel_of_cell.insert(keyOf(c), static_cast<int>(voxels.size()));
+    if (inserted) {
+      voxels.emplace_back();
+      voxels.back().cell = c;
+    }
+    VoxelStats& s = voxels[v];
+    ++s.count;
+    s.sum += p;
+    s.sum_outer.noalias() += p * p.transpose();
+  }
+  const int k = params.normal_neighbours;
+  if (static_cast<int>(voxels.size()) < 3)
+    throw std::invalid_argument(
+        "PointToPlaneTarget::build: " + std::to_string(voxels.size()) +
+        " occupied voxels, need at least 3");
+
+  // 2. Plane of each voxel: fitted to the raw points of its 3x3x3 voxel block (a
+  // neighbourhood of ~1.5 voxels radius); normal = eigenvector of the smallest
+  // eigenvalue of their covariance; keep voxels whose neighbourhood is planar.
+  // A source needs at most max_planes planes: fit them on evenly spread voxels only.
+  const std::size_t stride =
+      max_planes > 0 ? std::max<std::size_t>(1, voxels.size() / (2 * max_planes)) : 1;
+  PointVector planar_points, planar_normals;
+  planar_points.reserve(voxels.size() / stride + 1);
+  planar_normals.reserve(voxels.size() / stride + 1);
+  for (std::size_t v = 0; v < voxels.size(); v += stride) {
+    const VoxelStats& voxel = voxels[v];
+    int count = 0;
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    Eigen::Matrix3d sum_outer = Eigen::Matrix3d::Zero();
+    // 3x3x3 block; 5x5x5 where that holds too few points (sparse, far surfaces).
+    for (int radius = 1; radius <= 2 && count < k; ++radius) {
+      count = 0;
+      sum.setZero();
+      sum_outer.setZero();
+      for (int dx = -radius; dx <= radius; ++dx)
+        for (int dy = -radius; dy <= radius; ++dy)
+          for (int dz = -radius; dz <= radius; ++dz) {
+            const int j = voxel_of_cell.find(packVoxelKey(
+                voxel.cell.x() + dx, voxel.cell.y() + dy, voxel.cell.z() + dz));
+            if (j < 0)
+              continue;
+            count += voxels[j].count;
+            sum += voxels[j].sum;
+            sum_outer += voxels[j].sum_outer;
+          }
+    }
+    if (count < k)
+      continue;
+    // E[p p^T] - mean mean^T: in double, cancellation costs ~1e-12 m^2 at 100 m range.
+    const Eigen::Vector3d mean = sum / count;
+    const Eigen::Matrix3d covariance = sum_outer / count - mean * mean.transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+    eig.computeDirect(covariance); // closed form: ~10x faster than the iterative solver
+    const Eigen::Vector3d lambda = eig.eigenvalues().cwiseMax(0.0); // ascending
+    const double lambda_sum = lambda.sum();
+    // Collinear neighbourhoods (one scan ring) have no defined normal: lambda_1 ~ 0.
+    if (lambda_sum <= 0.0 || lambda(0) > params.max_surface_variation * lambda_sum ||
+        lambda(1) < 1e-2 * lambda(2))
+      continue;
+    planar_points.push_back(voxel.sum / voxel.count);
+    planar_normals.push_back(eig.eigenvectors().col(0).normalized());
+  }
+  if (planar_points.empty())
+    throw std::invalid_argument(
+        "PointToPlaneTarget::build: no planar target point among " +
+        std::to_string(voxels.size()) + " voxels");
+  points_ = std::move(planar_points);
+  normals_ = std::move(planar_normals);
+  buildIndex(std::max(voxel_m, 0.5 * params.max_correspondence_distance_m));
+}
+
+void
+PointToPlaneTarget::build(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                          const PointToPlaneParams& params)
+{
+  build(toPointVector(cloud), params);
+}
+
+void
+PointToPlaneTarget::build(const pcl::PointCloud<pcl::PointNormal>& cloud_with_normals)
+{
+  PointVector points, normals;
+  for (const auto& p : cloud_with_normals.points) {
+    const Eigen::Vector3d point(p.x, p.y, p.z);
+    const Eigen::Vector3d normal(p.normal_x, p.normal_y, p.normal_z);
+    if (!point.allFinite() || !normal.allFinite() || normal.norm() < 1e-6)
+      continue;
+    points.push_back(point);
+    normals.push_back(normal.normalized());
+  }
+  if (points.empty())
+    throw std::invalid_argument("PointToPlaneTarget::build: none of the " +
+                                std::to_string(cloud_with_normals.size()) +
+                                " points has a finite, non-zero normal");
+  points_ = std::move(points);
+  normals_ = std::move(normals);
+  buildIndex(0.5); // the default max_correspondence_distance_m / 2
+}
+
+bool
+PointToPlaneTarget::nearest(const Eigen::Vector3d& query,
+                            double max_distance_m,
+                            Eigen::Vector3d& point,
+                            Eigen::Vector3d& normal) const
+{
+  if (!index_ || points_.empty())
+    return false;
+  const Index& index = *index_;
+  const Eigen::Vector3f q = query.cast<float>();
+  const Eigen::Array3f scaled = q.array() * static_cast<float>(index.inverse_cell_m);
+  const Eigen::Array3f floor = scaled.floor();
+  const Eigen::Array3i cell = floor.cast<int>();
+  // Squared distances to the lower and upper faces of the query's cell, per axis.
+  const float cell_m = static_cast<float>(index.cell_m);
+  const Eigen::Array3f to_lower = (scaled - floor) * cell_m;
+  const Eigen::Array3f to_upper = cell_m - to_lower;
+  float best_sq = static_cast<float>(max_distance_m * max_distance_m);
+  int best = -1;
+  // Own cell first, then the 26 neighbours, skipping any farther than the best so far.
+  static constexpr int kOffsets[3] = {0, -1, 1};
+  for (const int dx : kOffsets) {
+    const float gx = dx < 0   ? to_lower.x() * to_lower.x()
+                     : dx > 0 ? to_upper.x() * to_upper.x()
+                              : 0.f;
+    if (gx >= best_sq)
+      continue;
+    for (const int dy : kOffsets) {
+      const float gy = gx + (dy < 0   ? to_lower.y() * to_lower.y()
+                             : dy > 0 ? to_upper.y() * to_upper.y()
+                                      : 0.f);
+      if (gy >= best_sq)
+        continue;
+      for (const int dz : kOffsets) {
+        const float gz = gy + (dz < 0   ? to_lower.z() * to_lower.z()
+                               : dz > 0 ? to_upper.z() * to_upper.z()
+                                        : 0.f);
+        if (gz >= best_sq)
+          continue;
+        const int slot =
+            index.cells.find(packVoxelKey(cell.x() + dx, cell.y() + dy, cell.z() + dz));
+        if (slot < 0)
+          continue;
+        const auto [begin, end] = index.ranges[slot];
+        for (int k = begin; k < end; ++k) {
+          const float d_sq = (index.ordered_points[k] - q).squaredNorm();
+          if (d_sq < best_sq) {
+            best_sq = d_sq;
+            best = k;
+          }
+        }
+      }
+    }
+  }
+  if (best < 0)
+    return false;
+  point = points_[index.order[best]];
+  normal = normals_[index.order[best]];
+  return true;
+}
+
+} // namespace rast
+} // namespace pcl
