@@ -213,7 +213,7 @@ private:
   /// One fit on \a candidates (finite or not) of the input: ground and non-ground
   /// indices, plane and message in \a result (its cloud untouched).
   void
-  fit(const pcl::Indices* candidates, GroundRemovalResult<PointT>& result) const;
+  fit(const pcl::Indices* indices, GroundRemovalResult<PointT>& result) const;
 
   SACGroundRemovalParams params_;
   bool ground_found_ = false;

@@ -117,6 +117,165 @@ levellingRotation(const Eigen::Vector4f& plane)
       .toRotationMatrix();
 }
 
+/// The points a fit looks at: the whole cloud, or the indices of it.
+template <typename PointT>
+struct Candidates
+{
+  const pcl::PointCloud<PointT>& cloud;
+  const pcl::Indices* indices; ///< null: every point
+  std::size_t
+  size() const
+  {
+    return indices ? indices->size() : cloud.size();
+  }
+  pcl::index_t
+  operator()(std::size_t k) const
+  {
+    return indices ? (*indices)[k] : static_cast<pcl::index_t>(k);
+  }
+  /// The finite ones among them.
+  pcl::Indices
+  finite(std::size_t expected) const
+  {
+    pcl::Indices out;
+    out.reserve(expected);
+    for (std::size_t k = 0; k < size(); ++k)
+      if (pcl::isXYZFinite(cloud[(*this)(k)]))
+        out.push_back((*this)(k));
+    return out;
+  }
+};
+
+/// Step 1 of a fit: the finite candidates are counted, and those below
+/// \a sample_max_height_m along \a up are the pool the subsample is drawn from.
+template <typename PointT>
+std::size_t
+scanCandidates(const Candidates<PointT>& candidates,
+               const Eigen::Vector3f& up,
+               float sample_max_height_m,
+               pcl::Indices& low)
+{
+  low.clear();
+  low.reserve(candidates.size() / 2);
+  std::size_t num_finite = 0;
+  for (std::size_t k = 0; k < candidates.size(); ++k) {
+    const auto i = candidates(k);
+    const auto& p = candidates.cloud[i];
+    if (!pcl::isXYZFinite(p))
+      continue;
+    ++num_finite;
+    if (p.x * up[0] + (p.y * up[1] + p.z * up[2]) < sample_max_height_m)
+      low.push_back(i);
+  }
+  return num_finite;
+}
+
+/// Step 2: a seeded random subsample of \a pool (with replacement: O(sample), not
+/// O(cloud)), copied into a contiguous cloud for the sample-consensus model.
+template <typename PointT>
+pcl::PointCloud<pcl::PointXYZ>::Ptr
+drawSample(const pcl::PointCloud<PointT>& cloud,
+           const pcl::Indices& pool,
+           std::size_t max_sample_points,
+           std::mt19937& rng)
+{
+  const std::size_t sample_size = std::min<std::size_t>(pool.size(), max_sample_points);
+  pcl::PointCloud<pcl::PointXYZ>::Ptr sample(new pcl::PointCloud<pcl::PointXYZ>);
+  sample->resize(sample_size);
+  auto store = [&](std::size_t k, pcl::index_t i) {
+    (*sample)[k].getVector3fMap() = cloud[i].getVector3fMap();
+  };
+  if (pool.size() <= max_sample_points) {
+    for (std::size_t k = 0; k < sample_size; ++k)
+      store(k, pool[k]);
+  } else {
+    std::uniform_int_distribution<std::size_t> pick(0, pool.size() - 1);
+    for (std::size_t k = 0; k < sample_size; ++k)
+      store(k, pool[pick(rng)]);
+  }
+  return sample;
+}
+
+/// Step 3: RANSAC on the subsample. PCL's plane model makes each hypothesis from the
+/// samples drawn here from the seed (and rejects collinear ones); planes too steep or
+/// above the sensor are skipped. Stops early once a better plane is unlikely. Returns
+/// the support of \a best_plane (0: none).
+inline std::size_t
+ransacPlane(const pcl::PointCloud<pcl::PointXYZ>::Ptr& sample,
+            const SACGroundRemovalParams& params,
+            const Eigen::Vector3f& up,
+            std::mt19937& rng,
+            Eigen::Vector4f& best_plane)
+{
+  const float threshold = static_cast<float>(params.distance_threshold_m);
+  const float cos_max_tilt = static_cast<float>(std::cos(params.max_tilt_deg * kDegToRad));
+  const float max_plane_height = static_cast<float>(params.max_plane_height_m);
+  const std::size_t sample_size = sample->size();
+  const pcl::SampleConsensusModelPlane<pcl::PointXYZ> model(sample, false);
+  std::uniform_int_distribution<pcl::index_t> pick_sample(
+      0, static_cast<pcl::index_t>(sample_size) - 1);
+  best_plane = Eigen::Vector4f::Zero();
+  std::size_t best_count = 0;
+  int iterations = params.max_iterations;
+  pcl::Indices hypothesis(3);
+  Eigen::VectorXf coefficients;
+  for (int it = 0; it < iterations; ++it) {
+    for (auto& index : hypothesis)
+      index = pick_sample(rng);
+    if (hypothesis[0] == hypothesis[1] || hypothesis[0] == hypothesis[2] ||
+        hypothesis[1] == hypothesis[2] ||
+        !model.computeModelCoefficients(hypothesis, coefficients))
+      continue;
+    Eigen::Vector4f plane = coefficients.head<4>();
+    orientUp(plane, up);
+    if (!isAcceptableGround(plane, up, cos_max_tilt, max_plane_height))
+      continue;
+    // Scored here, not by model.countWithinDistance: PCL's loop goes through the
+    // model's index list point by point; with it the whole ground removal of an
+    // HDL-64 scan took 3.1 ms instead of 1.1 ms (session-7 note, issue 11).
+    std::size_t support = 0;
+    const float nx = plane[0], ny = plane[1], nz = plane[2], d = plane[3];
+    for (const auto& p : sample->points)
+      support += std::abs(nx * p.x + (ny * p.y + nz * p.z) + d) < threshold;
+    if (support > best_count) {
+      best_count = support;
+      best_plane = plane;
+      iterations = std::max(it + 1,
+                            requiredIterations(static_cast<double>(support) / sample_size,
+                                               params.max_iterations));
+    }
+  }
+  return best_count;
+}
+
+/// Step 5: the candidates within \a threshold of \a plane are ground, the other finite
+/// ones not; returns the sum of the ground points' squared distances.
+template <typename PointT>
+double
+classify(const Candidates<PointT>& candidates,
+         const Eigen::Vector4f& plane,
+         float threshold,
+         std::size_t num_finite,
+         GroundRemovalResult<PointT>& result)
+{
+  result.ground_indices.clear();
+  result.non_ground_indices.clear();
+  result.ground_indices.reserve(num_finite / 2);
+  result.non_ground_indices.reserve(num_finite);
+  double sum_sq_distance = 0.0;
+  for (std::size_t k = 0; k < candidates.size(); ++k) {
+    const auto i = candidates(k);
+    const float d = signedDistance(plane, candidates.cloud[i]);
+    if (std::abs(d) < threshold) {
+      result.ground_indices.push_back(i);
+      sum_sq_distance += d * d;
+    } else if (std::isfinite(d)) { // d is finite exactly when the point is
+      result.non_ground_indices.push_back(i);
+    }
+  }
+  return sum_sq_distance;
+}
+
 } // namespace ground_detail
 
 template <typename PointT>
@@ -179,17 +338,14 @@ SACGroundRemoval<PointT>::getLevellingTransform() const
 
 template <typename PointT>
 void
-SACGroundRemoval<PointT>::fit(const pcl::Indices* candidates,
+SACGroundRemoval<PointT>::fit(const pcl::Indices* indices,
                               GroundRemovalResult<PointT>& result) const
 {
   using namespace ground_detail;
   const PointCloud& cloud = *input_;
-  const std::size_t count = candidates ? candidates->size() : cloud.size();
-  auto at = [&](std::size_t k) {
-    return candidates ? (*candidates)[k] : static_cast<pcl::index_t>(k);
-  };
-  if (candidates)
-    for (const auto i : *candidates)
+  const Candidates<PointT> candidates{cloud, indices};
+  if (indices)
+    for (const auto i : *indices)
       if (i < 0 || static_cast<std::size_t>(i) >= cloud.size())
         throw std::out_of_range("SACGroundRemoval: index " + std::to_string(i) +
                                 " is outside the input cloud of " +
@@ -200,111 +356,36 @@ SACGroundRemoval<PointT>::fit(const pcl::Indices* candidates,
       static_cast<float>(std::cos(params_.max_tilt_deg * kDegToRad));
   const float max_plane_height = static_cast<float>(params_.max_plane_height_m);
 
-  // 1. Count the finite points and collect the candidates for the subsample: points
-  //    below the sensor. (The passes below skip non-finite points on the fly: a NaN
-  //    distance fails every comparison.)
+  // 1. The finite candidates, and the low ones the subsample is drawn from. (The passes
+  //    below skip non-finite points on the fly: a NaN distance fails every comparison.)
   pcl::Indices low;
-  low.reserve(count / 2);
-  std::size_t num_finite = 0;
-  const float sample_max_height = static_cast<float>(params_.sample_max_height_m);
-  for (std::size_t k = 0; k < count; ++k) {
-    const auto i = at(k);
-    const auto& p = cloud[i];
-    if (!pcl::isXYZFinite(p))
-      continue;
-    ++num_finite;
-    if (p.x * up[0] + (p.y * up[1] + p.z * up[2]) < sample_max_height)
-      low.push_back(i);
-  }
-  result.num_non_finite = count - num_finite;
+  const std::size_t num_finite = scanCandidates(
+      candidates, up, static_cast<float>(params_.sample_max_height_m), low);
+  result.num_non_finite = candidates.size() - num_finite;
   if (num_finite == 0) {
-    result.message = count == 0 ? "empty input cloud" : "input cloud has no finite point";
+    result.message =
+        candidates.size() == 0 ? "empty input cloud" : "input cloud has no finite point";
     return;
   }
   result.success = true;
-
-  auto finiteIndices = [&]() {
-    pcl::Indices finite;
-    finite.reserve(num_finite);
-    for (std::size_t k = 0; k < count; ++k)
-      if (pcl::isXYZFinite(cloud[at(k)]))
-        finite.push_back(at(k));
-    return finite;
-  };
   auto reportNoGround = [&](const std::string& reason) {
     result.ground_found = false;
     result.plane_coefficients.setZero();
     result.ground_indices.clear();
-    result.non_ground_indices = finiteIndices();
+    result.non_ground_indices = candidates.finite(num_finite);
     result.message = "no ground: " + reason;
   };
 
-  // 2. Seeded random subsample (with replacement: O(sample), not O(cloud)), copied
-  //    into a contiguous cloud for the sample-consensus model.
-  pcl::Indices finite_pool;
-  if (low.size() < 3)
-    finite_pool = finiteIndices();
-  const pcl::Indices& pool = low.size() >= 3 ? low : finite_pool;
+  // 2-3. Seeded subsample (of all finite points when fewer than 3 are low), RANSAC.
+  const pcl::Indices pool = low.size() >= 3 ? std::move(low) : candidates.finite(num_finite);
   if (pool.size() < 3) {
     reportNoGround("fewer than 3 finite points");
     return;
   }
   std::mt19937 rng(params_.seed);
-  const std::size_t sample_size =
-      std::min<std::size_t>(pool.size(), params_.max_sample_points);
-  pcl::PointCloud<pcl::PointXYZ>::Ptr sample(new pcl::PointCloud<pcl::PointXYZ>);
-  sample->resize(sample_size);
-  auto store = [&](std::size_t k, pcl::index_t i) {
-    (*sample)[k].getVector3fMap() = cloud[i].getVector3fMap();
-  };
-  if (pool.size() <= params_.max_sample_points) {
-    for (std::size_t k = 0; k < sample_size; ++k)
-      store(k, pool[k]);
-  } else {
-    std::uniform_int_distribution<std::size_t> pick(0, pool.size() - 1);
-    for (std::size_t k = 0; k < sample_size; ++k)
-      store(k, pool[pick(rng)]);
-  }
-
-  // 3. RANSAC on the subsample: PCL's plane model makes each hypothesis from the
-  //    samples drawn here from the seed (and rejects collinear ones); planes too
-  //    steep or above the sensor are skipped. Stops early once a better plane is
-  //    unlikely.
-  const pcl::SampleConsensusModelPlane<pcl::PointXYZ> model(sample, false);
-  std::uniform_int_distribution<pcl::index_t> pick_sample(
-      0, static_cast<pcl::index_t>(sample_size) - 1);
-  Eigen::Vector4f best_plane = Eigen::Vector4f::Zero();
-  std::size_t best_count = 0;
-  int iterations = params_.max_iterations;
-  pcl::Indices hypothesis(3);
-  Eigen::VectorXf coefficients;
-  for (int it = 0; it < iterations; ++it) {
-    for (auto& index : hypothesis)
-      index = pick_sample(rng);
-    if (hypothesis[0] == hypothesis[1] || hypothesis[0] == hypothesis[2] ||
-        hypothesis[1] == hypothesis[2] ||
-        !model.computeModelCoefficients(hypothesis, coefficients))
-      continue;
-    Eigen::Vector4f plane = coefficients.head<4>();
-    orientUp(plane, up);
-    if (!isAcceptableGround(plane, up, cos_max_tilt, max_plane_height))
-      continue;
-    // Scored here, not by model.countWithinDistance: PCL's loop goes through the
-    // model's index list point by point; with it the whole ground removal of an
-    // HDL-64 scan took 3.1 ms instead of 1.1 ms (session-7 note, issue 11).
-    std::size_t support = 0;
-    const float nx = plane[0], ny = plane[1], nz = plane[2], d = plane[3];
-    for (const auto& p : sample->points)
-      support += std::abs(nx * p.x + (ny * p.y + nz * p.z) + d) < threshold;
-    if (support > best_count) {
-      best_count = support;
-      best_plane = plane;
-      iterations = std::max(it + 1,
-                            requiredIterations(static_cast<double>(support) / sample_size,
-                                               params_.max_iterations));
-    }
-  }
-  if (best_count < 3) {
+  const auto sample = drawSample(cloud, pool, params_.max_sample_points, rng);
+  Eigen::Vector4f plane;
+  if (ransacPlane(sample, params_, up, rng, plane) < 3) {
     reportNoGround("no near-horizontal plane below the sensor");
     return;
   }
@@ -313,36 +394,19 @@ SACGroundRemoval<PointT>::fit(const pcl::Indices* candidates,
   //    subsample the model holds) on the inliers of the RANSAC plane.
   if (params_.refine) {
     auto is_inlier = [&](pcl::index_t i) {
-      return std::abs(signedDistance(best_plane, cloud[i])) < threshold; // NaN: no
+      return std::abs(signedDistance(plane, cloud[i])) < threshold; // NaN: no
     };
     Eigen::Vector4f refined;
-    const bool fitted = leastSquaresPlane(cloud, count, at, is_inlier, refined);
-    if (fitted) {
+    if (leastSquaresPlane(cloud, candidates.size(), candidates, is_inlier, refined)) {
       orientUp(refined, up);
       if (isAcceptableGround(refined, up, cos_max_tilt, max_plane_height))
-        best_plane = refined;
+        plane = refined;
     }
   }
 
-  // 5. Classify: ground and non-ground indices.
-  result.ground_indices.clear();
-  result.non_ground_indices.clear();
-  result.ground_indices.reserve(num_finite / 2);
-  result.non_ground_indices.reserve(num_finite);
-  double sum_sq_distance = 0.0;
-  for (std::size_t k = 0; k < count; ++k) {
-    const auto i = at(k);
-    const float d = signedDistance(best_plane, cloud[i]);
-    if (std::abs(d) < threshold) {
-      result.ground_indices.push_back(i);
-      sum_sq_distance += d * d;
-    } else if (std::isfinite(d)) { // d is finite exactly when the point is
-      result.non_ground_indices.push_back(i);
-    }
-  }
+  // 5. Classify; 6. enough support, and a thin surface?
+  const double sum_sq_distance = classify(candidates, plane, threshold, num_finite, result);
   const std::size_t num_inliers = result.ground_indices.size();
-
-  // 6. Enough support?
   const std::size_t min_count = std::max<std::size_t>(
       params_.min_inliers,
       static_cast<std::size_t>(std::ceil(params_.min_inlier_ratio * num_finite)));
@@ -364,14 +428,14 @@ SACGroundRemoval<PointT>::fit(const pcl::Indices* candidates,
   }
 
   result.ground_found = true;
-  result.plane_coefficients = best_plane;
+  result.plane_coefficients = plane;
   if (params_.level_cloud)
-    result.T_level_lidar.linear() = levellingRotation(best_plane);
+    result.T_level_lidar.linear() = levellingRotation(plane);
   std::ostringstream msg;
   msg << "ground: " << num_inliers << " of " << num_finite
-      << " finite points, sensor height " << best_plane[3] << " m, inlier RMS " << rms
+      << " finite points, sensor height " << plane[3] << " m, inlier RMS " << rms
       << " m, tilt "
-      << std::acos(std::min(1.0f, best_plane.head<3>().dot(up))) / kDegToRad << " deg";
+      << std::acos(std::min(1.0f, plane.head<3>().dot(up))) / kDegToRad << " deg";
   result.message = msg.str();
 }
 
