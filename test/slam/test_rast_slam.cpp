@@ -200,6 +200,8 @@ TEST(RastSlam, ThreadedModeProcessesEveryFrame)
 {
   SlamParams params;
   params.deterministic = false;
+  // Local mapping runs (its own thread) only for a bundle adjustment: exercise it.
+  params.local_mapping.enable_bundle_adjustment = true;
   const RunResult r = runSlam(params);
   const LoopSequence& s = loopSequence();
   ASSERT_EQ(r.poses.size(), s.gt.size());
