@@ -102,6 +102,99 @@ requiredIterations(double inlier_ratio, double confidence, int max_iterations)
   return static_cast<int>(std::min<double>(std::ceil(n), max_iterations));
 }
 
+/// Three distinct correspondences drawn from \a rng, or false when a rigid motion
+/// cannot map them: a degenerate triangle on either side, or a mutual distance that
+/// changes by more than \a distance_tolerance_m (at least one is an outlier).
+bool
+drawSample(const Eigen::Matrix3Xd& source,
+           const Eigen::Matrix3Xd& target,
+           std::uniform_int_distribution<int>& pick,
+           std::mt19937& rng,
+           double min_extent_m,
+           double distance_tolerance_m,
+           Eigen::Matrix3Xd& sample_source,
+           Eigen::Matrix3Xd& sample_target)
+{
+  int idx[3];
+  idx[0] = pick(rng);
+  do
+    idx[1] = pick(rng);
+  while (idx[1] == idx[0]);
+  do
+    idx[2] = pick(rng);
+  while (idx[2] == idx[0] || idx[2] == idx[1]);
+  for (int k = 0; k < 3; ++k) {
+    sample_source.col(k) = source.col(idx[k]);
+    sample_target.col(k) = target.col(idx[k]);
+  }
+  if (isDegenerateTriangle(sample_source.col(0), sample_source.col(1),
+                           sample_source.col(2), min_extent_m) ||
+      isDegenerateTriangle(sample_target.col(0), sample_target.col(1),
+                           sample_target.col(2), min_extent_m))
+    return false;
+  for (int a = 0; a < 3; ++a) {
+    const int b = (a + 1) % 3;
+    const double d_source = (sample_source.col(a) - sample_source.col(b)).norm();
+    const double d_target = (sample_target.col(a) - sample_target.col(b)).norm();
+    if (std::abs(d_source - d_target) > distance_tolerance_m)
+      return false;
+  }
+  return true;
+}
+
+/// Re-estimate \a T on all its inliers until the inlier set stops changing (or would
+/// shrink); \a inliers ends as the final consensus.
+Eigen::Isometry3d
+reestimateOnInliers(const Eigen::Matrix3Xd& source,
+                    const Eigen::Matrix3Xd& target,
+                    Eigen::Isometry3d T,
+                    double inlier_threshold_m,
+                    std::vector<int>& inliers)
+{
+  scoreModel(source, target, T, inlier_threshold_m, &inliers);
+  for (int round = 0; round < 10 && inliers.size() >= 3; ++round) {
+    const Eigen::Matrix3Xd inlier_source = gather(source, inliers);
+    const RigidTransformEstimate estimate =
+        estimateRigidTransform(inlier_source, gather(target, inliers));
+    std::vector<int> new_inliers;
+    scoreModel(source, target, estimate.T_target_source, inlier_threshold_m, &new_inliers);
+    if (new_inliers.size() < inliers.size())
+      break; // keep the larger consensus
+    T = estimate.T_target_source;
+    const bool same = new_inliers == inliers;
+    inliers.swap(new_inliers);
+    if (same)
+      break;
+  }
+  return T;
+}
+
+/// The final checks: enough inliers, not collinear; the summary otherwise.
+void
+checkConsensus(const Eigen::Matrix3Xd& inlier_source,
+               int num_correspondences,
+               const RigidRansacParams& params,
+               RigidRansacResult& result)
+{
+  const std::size_t num_inliers = result.inlier_indices.size();
+  if (static_cast<int>(num_inliers) < params.min_inliers) {
+    result.message = "RANSAC failed: best model has " + std::to_string(num_inliers) +
+                     " inliers < min_inliers " + std::to_string(params.min_inliers);
+    return;
+  }
+  const double extent_m = secondaryExtent(inlier_source);
+  if (extent_m < params.min_sample_extent_m) {
+    result.degenerate = true;
+    result.message = "RANSAC failed: inliers are nearly collinear (secondary extent " +
+                     std::to_string(extent_m) + " m < " +
+                     std::to_string(params.min_sample_extent_m) + " m)";
+    return;
+  }
+  result.success = true;
+  result.message = std::to_string(num_inliers) + "/" + std::to_string(num_correspondences) +
+                   " inliers after " + std::to_string(result.iterations) + " samples";
+}
+
 } // namespace
 
 RigidRansacResult
@@ -124,44 +217,20 @@ estimateRigidRansac(const Eigen::Matrix3Xd& source,
     return result;
   }
 
+  // Hypotheses from seeded 3-point samples, pre-rejected when a rigid motion cannot
+  // map them; the best score wins, and the iteration count adapts to its inliers.
   std::mt19937 rng(params.seed);
   std::uniform_int_distribution<int> pick(0, n - 1);
-  const double distance_tolerance_m = 2.0 * params.inlier_threshold_m;
-
   double best_score = std::numeric_limits<double>::infinity();
   Eigen::Isometry3d best_T = Eigen::Isometry3d::Identity();
   int best_inlier_count = 0;
   int needed = params.max_iterations;
   std::vector<int> inliers;
   Eigen::Matrix3Xd sample_source(3, 3), sample_target(3, 3);
-
   while (result.iterations < needed) {
     ++result.iterations;
-    int idx[3];
-    idx[0] = pick(rng);
-    do
-      idx[1] = pick(rng);
-    while (idx[1] == idx[0]);
-    do
-      idx[2] = pick(rng);
-    while (idx[2] == idx[0] || idx[2] == idx[1]);
-    for (int k = 0; k < 3; ++k) {
-      sample_source.col(k) = source.col(idx[k]);
-      sample_target.col(k) = target.col(idx[k]);
-    }
-    // Pre-rejection: degenerate triangles, and pairs whose mutual distance a rigid
-    // motion cannot preserve (at least one of them is an outlier).
-    bool reject = isDegenerateTriangle(sample_source.col(0), sample_source.col(1),
-                                       sample_source.col(2), params.min_sample_extent_m) ||
-                  isDegenerateTriangle(sample_target.col(0), sample_target.col(1),
-                                       sample_target.col(2), params.min_sample_extent_m);
-    for (int a = 0; a < 3 && !reject; ++a) {
-      const int b = (a + 1) % 3;
-      const double d_source = (sample_source.col(a) - sample_source.col(b)).norm();
-      const double d_target = (sample_target.col(a) - sample_target.col(b)).norm();
-      reject = std::abs(d_source - d_target) > distance_tolerance_m;
-    }
-    if (reject) {
+    if (!drawSample(source, target, pick, rng, params.min_sample_extent_m,
+                    2.0 * params.inlier_threshold_m, sample_source, sample_target)) {
       ++result.degenerate_samples;
       continue;
     }
@@ -176,7 +245,6 @@ estimateRigidRansac(const Eigen::Matrix3Xd& source,
                                            params.confidence, params.max_iterations));
     }
   }
-
   if (best_inlier_count == 0) {
     result.degenerate = result.degenerate_samples == result.iterations;
     result.message = result.degenerate
@@ -187,25 +255,8 @@ estimateRigidRansac(const Eigen::Matrix3Xd& source,
     return result;
   }
 
-  // Re-estimate on all inliers until the inlier set stops changing.
-  Eigen::Isometry3d T = best_T;
-  scoreModel(source, target, T, params.inlier_threshold_m, &inliers);
-  for (int round = 0; round < 10 && inliers.size() >= 3; ++round) {
-    const Eigen::Matrix3Xd inlier_source = gather(source, inliers);
-    const RigidTransformEstimate estimate =
-        estimateRigidTransform(inlier_source, gather(target, inliers));
-    std::vector<int> new_inliers;
-    scoreModel(source, target, estimate.T_target_source, params.inlier_threshold_m,
-               &new_inliers);
-    if (new_inliers.size() < inliers.size())
-      break; // keep the larger consensus
-    T = estimate.T_target_source;
-    const bool same = new_inliers == inliers;
-    inliers.swap(new_inliers);
-    if (same)
-      break;
-  }
-
+  const Eigen::Isometry3d T =
+      reestimateOnInliers(source, target, best_T, params.inlier_threshold_m, inliers);
   result.T_target_source = T;
   result.inlier_indices = inliers;
   const Eigen::Matrix3Xd inlier_source = gather(source, inliers);
@@ -213,23 +264,7 @@ estimateRigidRansac(const Eigen::Matrix3Xd& source,
       gather(target, inliers) - ((T.linear() * inlier_source).colwise() + T.translation());
   result.inlier_rmse_m =
       inliers.empty() ? 0.0 : std::sqrt(residuals.colwise().squaredNorm().mean());
-
-  if (static_cast<int>(inliers.size()) < params.min_inliers) {
-    result.message = "RANSAC failed: best model has " + std::to_string(inliers.size()) +
-                     " inliers < min_inliers " + std::to_string(params.min_inliers);
-    return result;
-  }
-  const double extent_m = secondaryExtent(inlier_source);
-  if (extent_m < params.min_sample_extent_m) {
-    result.degenerate = true;
-    result.message = "RANSAC failed: inliers are nearly collinear (secondary extent " +
-                     std::to_string(extent_m) + " m < " +
-                     std::to_string(params.min_sample_extent_m) + " m)";
-    return result;
-  }
-  result.success = true;
-  result.message = std::to_string(inliers.size()) + "/" + std::to_string(n) +
-                   " inliers after " + std::to_string(result.iterations) + " samples";
+  checkConsensus(inlier_source, n, params, result);
   return result;
 }
 
