@@ -1,5 +1,7 @@
 /// \file pose_graph.cpp
-/// \brief Pose-graph optimization with Ceres: build problem, solve, write back.
+/// \brief Pose-graph optimization with Ceres: build problem, solve, write back; and the
+/// evaluation of a graph without optimizing (chi2, inconsistent edges). The graph as
+/// plain data is in pose_graph_data.cpp.
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
@@ -16,87 +18,6 @@ namespace rast {
 namespace {
 
 using Matrix6d = Eigen::Matrix<double, 6, 6>;
-
-std::string
-formatVector(const Eigen::Ref<const Eigen::VectorXd>& v)
-{
-  std::ostringstream out;
-  out << "(";
-  for (Eigen::Index i = 0; i < v.size(); ++i)
-    out << (i ? " " : "") << v[i];
-  out << ")";
-  return out.str();
-}
-
-std::string
-typeName(PoseGraphEdgeType type)
-{
-  switch (type) {
-  case PoseGraphEdgeType::kOdometry:
-    return "odometry";
-  case PoseGraphEdgeType::kLoop:
-    return "loop";
-  case PoseGraphEdgeType::kOther:
-    return "other";
-  }
-  return "unknown";
-}
-
-/// Normalize a quaternion, rejecting non-finite values and norms far from 1.
-Eigen::Quaterniond
-checkedUnitQuaternion(const Eigen::Quaterniond& q, const std::string& where)
-{
-  const double norm = q.norm();
-  if (!q.coeffs().allFinite() || std::abs(norm - 1.0) > 1e-3)
-    throw std::invalid_argument(
-        where + ": quaternion (x y z w) " + formatVector(q.coeffs()) +
-        " is not finite or not of unit norm (norm " + std::to_string(norm) + ")");
-  return q.normalized();
-}
-
-void
-checkFinitePosition(const Eigen::Vector3d& p, const std::string& where)
-{
-  if (!p.allFinite())
-    throw std::invalid_argument(where + ": translation " + formatVector(p) +
-                                " is not finite");
-}
-
-/// Split an isometry into translation and unit quaternion. A pose handed in through the
-/// API is judged as input from outside (rigid_pose.h): within kRotationTolerance of a
-/// rotation it is projected onto SE(3), further off it is rejected.
-void
-splitPose(const Pose3d& T,
-          const std::string& where,
-          Eigen::Vector3d& p,
-          Eigen::Quaterniond& q)
-{
-  const Pose3d rigid = checkedRigidPose(T, where);
-  p = rigid.translation();
-  q = Eigen::Quaterniond(rigid.linear()).normalized();
-}
-
-/// Check that \a information is finite, symmetric and positive semi-definite.
-void
-checkInformation(const Matrix6d& information, const std::string& where)
-{
-  if (!information.allFinite())
-    throw std::invalid_argument(where + ": information matrix is not finite");
-  const double scale = std::max(1.0, information.cwiseAbs().maxCoeff());
-  const double asymmetry = (information - information.transpose()).cwiseAbs().maxCoeff();
-  if (asymmetry > 1e-9 * scale)
-    throw std::invalid_argument(
-        where + ": information matrix is not symmetric (max |I - I^T| = " +
-        std::to_string(asymmetry) + ")");
-  const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(information);
-  const double min_eigenvalue = eig.eigenvalues().minCoeff();
-  if (min_eigenvalue < -1e-9 * scale)
-    throw std::invalid_argument(
-        where +
-        ": information matrix is not positive semi-definite (smallest "
-        "eigenvalue " +
-        std::to_string(min_eigenvalue) + ")");
-}
 
 /// A square root S of the information matrix Omega with S^T S = Omega, so that
 /// |S r|^2 = r^T Omega r. From the eigen-decomposition, which (unlike Cholesky)
@@ -245,147 +166,6 @@ struct NodeState
 } // namespace
 
 // ---------------------------------------------------------------------------
-// Plain data
-// ---------------------------------------------------------------------------
-
-Pose3d
-PoseGraphNode::pose() const
-{
-  Pose3d T = Pose3d::Identity();
-  T.linear() = q_world_node.normalized().toRotationMatrix();
-  T.translation() = p_world_node;
-  return T;
-}
-
-Pose3d
-PoseGraphEdge::measurement() const
-{
-  Pose3d T = Pose3d::Identity();
-  T.linear() = q_from_to.normalized().toRotationMatrix();
-  T.translation() = t_from_to;
-  return T;
-}
-
-void
-PoseGraph::addNode(int id, const Pose3d& T_world_node, bool fixed)
-{
-  Eigen::Vector3d p;
-  Eigen::Quaterniond q;
-  splitPose(T_world_node, "PoseGraph::addNode(" + std::to_string(id) + ")", p, q);
-  addNode(id, p, q, fixed);
-}
-
-void
-PoseGraph::addNode(int id,
-                   const Eigen::Vector3d& p_world_node,
-                   const Eigen::Quaterniond& q_world_node,
-                   bool fixed)
-{
-  const std::string where = "PoseGraph::addNode(" + std::to_string(id) + ")";
-  if (hasNode(id))
-    throw std::invalid_argument(where + ": node id " + std::to_string(id) +
-                                " already exists");
-  checkFinitePosition(p_world_node, where);
-  PoseGraphNode node;
-  node.p_world_node = p_world_node;
-  node.q_world_node = checkedUnitQuaternion(q_world_node, where);
-  node.fixed = fixed;
-  nodes_.emplace(id, node);
-}
-
-std::size_t
-PoseGraph::addEdge(int from,
-                   int to,
-                   const Pose3d& T_from_to,
-                   const Eigen::Matrix<double, 6, 6>& information,
-                   PoseGraphEdgeType type)
-{
-  PoseGraphEdge edge;
-  edge.from = from;
-  edge.to = to;
-  splitPose(T_from_to,
-            "PoseGraph::addEdge(" + std::to_string(from) + " -> " + std::to_string(to) +
-                ")",
-            edge.t_from_to,
-            edge.q_from_to);
-  edge.information = information;
-  edge.type = type;
-  return addEdge(edge);
-}
-
-std::size_t
-PoseGraph::addEdge(const PoseGraphEdge& edge)
-{
-  const std::string where = "PoseGraph::addEdge(" + std::to_string(edge.from) + " -> " +
-                            std::to_string(edge.to) + ", " + typeName(edge.type) + ")";
-  if (!hasNode(edge.from))
-    throw std::invalid_argument(where + ": unknown node id " + std::to_string(edge.from));
-  if (!hasNode(edge.to))
-    throw std::invalid_argument(where + ": unknown node id " + std::to_string(edge.to));
-  if (edge.from == edge.to)
-    throw std::invalid_argument(where + ": an edge must join two different nodes");
-  checkFinitePosition(edge.t_from_to, where);
-  checkInformation(edge.information, where);
-  PoseGraphEdge checked = edge;
-  checked.q_from_to = checkedUnitQuaternion(edge.q_from_to, where);
-  edges_.push_back(checked);
-  return edges_.size() - 1;
-}
-
-void
-PoseGraph::removeEdge(std::size_t index)
-{
-  if (index >= edges_.size())
-    throw std::out_of_range("PoseGraph::removeEdge: index " + std::to_string(index) +
-                            " out of range (" + std::to_string(edges_.size()) +
-                            " edges)");
-  edges_.erase(edges_.begin() + static_cast<std::ptrdiff_t>(index));
-}
-
-void
-PoseGraph::setNodePose(int id, const Pose3d& T_world_node)
-{
-  Eigen::Vector3d p;
-  Eigen::Quaterniond q;
-  splitPose(T_world_node, "PoseGraph::setNodePose(" + std::to_string(id) + ")", p, q);
-  setNodePose(id, p, q);
-}
-
-void
-PoseGraph::setNodePose(int id,
-                       const Eigen::Vector3d& p_world_node,
-                       const Eigen::Quaterniond& q_world_node)
-{
-  const std::string where = "PoseGraph::setNodePose(" + std::to_string(id) + ")";
-  auto it = nodes_.find(id);
-  if (it == nodes_.end())
-    throw std::invalid_argument(where + ": unknown node id " + std::to_string(id));
-  checkFinitePosition(p_world_node, where);
-  const Eigen::Quaterniond q = checkedUnitQuaternion(q_world_node, where);
-  it->second.p_world_node = p_world_node;
-  it->second.q_world_node = q;
-}
-
-void
-PoseGraph::setNodeFixed(int id, bool fixed)
-{
-  auto it = nodes_.find(id);
-  if (it == nodes_.end())
-    throw std::invalid_argument("PoseGraph::setNodeFixed: unknown node id " +
-                                std::to_string(id));
-  it->second.fixed = fixed;
-}
-
-const PoseGraphNode&
-PoseGraph::node(int id) const
-{
-  auto it = nodes_.find(id);
-  if (it == nodes_.end())
-    throw std::out_of_range("PoseGraph::node: unknown node id " + std::to_string(id));
-  return it->second;
-}
-
-// ---------------------------------------------------------------------------
 // Options and summary
 // ---------------------------------------------------------------------------
 
@@ -429,6 +209,69 @@ PoseGraphSummary::BriefReport() const
 // ---------------------------------------------------------------------------
 // Optimization: build problem, solve, write back
 // ---------------------------------------------------------------------------
+
+namespace {
+
+/// Step 3 of optimizePoseGraph: fix the gauge. Relative-pose edges only constrain poses
+/// up to one global rigid transform: the problem has a 6-dof null space that makes the
+/// normal equations singular. Holding one node constant removes it: the chosen gauge
+/// node (default: the smallest id in the problem) and every node flagged fixed.
+void
+fixGauge(const PoseGraph& graph,
+         const PoseGraphOptions& options,
+         std::map<int, NodeState>& states,
+         ceres::Problem& problem,
+         PoseGraphSummary& summary)
+{
+  int gauge_id = 0;
+  if (options.gauge_node_id) {
+    gauge_id = *options.gauge_node_id;
+  } else {
+    // Smallest id among the nodes in the problem (std::map iterates in id order).
+    for (auto& [id, state] : states)
+      if (problem.HasParameterBlock(state.q)) {
+        gauge_id = id;
+        break;
+      }
+  }
+  for (auto& [id, state] : states) {
+    if (!problem.HasParameterBlock(state.q))
+      continue;
+    if (id == gauge_id || graph.node(id).fixed) {
+      problem.SetParameterBlockConstant(state.p);
+      problem.SetParameterBlockConstant(state.q);
+      ++summary.num_fixed_nodes;
+    }
+  }
+  if (summary.num_fixed_nodes == 0)
+    summary.message = "warning: gauge node " + std::to_string(gauge_id) +
+                      " has no edge and no node is fixed: gauge left free; ";
+}
+
+/// Step 4: Levenberg-Marquardt with a sparse Cholesky (SuiteSparse when available).
+ceres::Solver::Options
+solverOptions(const PoseGraphOptions& options)
+{
+  ceres::Solver::Options solver_options;
+  solver_options.minimizer_type = ceres::TRUST_REGION;
+  solver_options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  solver_options.sparse_linear_algebra_library_type =
+      ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::SUITE_SPARSE)
+          ? ceres::SUITE_SPARSE
+          : ceres::EIGEN_SPARSE;
+  solver_options.max_num_iterations = options.max_iterations;
+  solver_options.num_threads = options.num_threads;
+  solver_options.function_tolerance = options.function_tolerance;
+  solver_options.gradient_tolerance = options.gradient_tolerance;
+  solver_options.parameter_tolerance = options.parameter_tolerance;
+  solver_options.minimizer_progress_to_stdout = options.verbose;
+  solver_options.logging_type =
+      options.verbose ? ceres::PER_MINIMIZER_ITERATION : ceres::SILENT;
+  return solver_options;
+}
+
+} // namespace
 
 PoseGraphSummary
 optimizePoseGraph(PoseGraph& graph, const PoseGraphOptions& options)
@@ -478,51 +321,11 @@ optimizePoseGraph(PoseGraph& graph, const PoseGraphOptions& options)
     ++summary.num_nodes;
   }
 
-  // 3. Fix the gauge. Relative-pose edges only constrain poses up to one global
-  //    rigid transform: the problem has a 6-dof null space that makes the normal
-  //    equations singular. Holding one node constant removes it. We hold the
-  //    chosen gauge node (default: smallest id) and every node flagged fixed.
-  int gauge_id = 0;
-  if (options.gauge_node_id) {
-    gauge_id = *options.gauge_node_id;
-  } else {
-    // Smallest id among the nodes in the problem (std::map iterates in id order).
-    for (auto& [id, state] : states)
-      if (problem.HasParameterBlock(state.q)) {
-        gauge_id = id;
-        break;
-      }
-  }
-  for (auto& [id, state] : states) {
-    if (!problem.HasParameterBlock(state.q))
-      continue;
-    if (id == gauge_id || graph.node(id).fixed) {
-      problem.SetParameterBlockConstant(state.p);
-      problem.SetParameterBlockConstant(state.q);
-      ++summary.num_fixed_nodes;
-    }
-  }
-  if (summary.num_fixed_nodes == 0)
-    summary.message = "warning: gauge node " + std::to_string(gauge_id) +
-                      " has no edge and no node is fixed: gauge left free; ";
+  // 3. Fix the gauge.
+  fixGauge(graph, options, states, problem, summary);
 
   // 4. Solve.
-  ceres::Solver::Options solver_options;
-  solver_options.minimizer_type = ceres::TRUST_REGION;
-  solver_options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-  solver_options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-  solver_options.sparse_linear_algebra_library_type =
-      ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::SUITE_SPARSE)
-          ? ceres::SUITE_SPARSE
-          : ceres::EIGEN_SPARSE;
-  solver_options.max_num_iterations = options.max_iterations;
-  solver_options.num_threads = options.num_threads;
-  solver_options.function_tolerance = options.function_tolerance;
-  solver_options.gradient_tolerance = options.gradient_tolerance;
-  solver_options.parameter_tolerance = options.parameter_tolerance;
-  solver_options.minimizer_progress_to_stdout = options.verbose;
-  solver_options.logging_type =
-      options.verbose ? ceres::PER_MINIMIZER_ITERATION : ceres::SILENT;
+  const ceres::Solver::Options solver_options = solverOptions(options);
   std::string solver_why;
   if (!solver_options.IsValid(&solver_why)) {
     summary.message += "invalid solver options: " + solver_why;
