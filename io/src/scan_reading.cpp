@@ -1,0 +1,511 @@
+/// \file scan_reading.cpp
+/// \brief The per-format scan readers: KITTI .bin, and PCD / PLY through PCL with the
+/// per-point time field found, validated and centred (doc/odometry.md).
+
+#include "scan_reading.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <pcl/PCLPointCloud2.h>
+#include <pcl/io/pcd_io.h>
+#include <pcl/io/ply_io.h>
+#include <pcl/io/pose_io.h>
+#include <pcl/io/sequence_reader.h>
+#include <sstream>
+#include <system_error>
+#include <utility>
+
+namespace fs = std::filesystem;
+
+namespace pcl {
+namespace rast {
+namespace io_detail {
+
+std::string
+lowerExtension(const fs::path& p)
+{
+  std::string ext = p.extension().string();
+  for (char& c : ext)
+    c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return ext;
+}
+
+bool
+isScanExtension(const std::string& ext)
+{
+  return ext == ".bin" || ext == ".pcd" || ext == ".ply";
+}
+
+namespace {
+
+constexpr std::size_t kKittiPointBytes = 4 * sizeof(float);
+
+/// Append a point when all four values are finite; otherwise count it as dropped.
+/// \return true when the point was appended
+inline bool
+pushIfFinite(pcl::PointCloud<pcl::PointXYZI>& cloud,
+             float x,
+             float y,
+             float z,
+             float intensity,
+             std::size_t& num_dropped)
+{
+  if (std::isfinite(x) && std::isfinite(y) && std::isfinite(z) &&
+      std::isfinite(intensity)) {
+    pcl::PointXYZI p;
+    p.x = x;
+    p.y = y;
+    p.z = z;
+    p.intensity = intensity;
+    cloud.push_back(p);
+    return true;
+  }
+  ++num_dropped;
+  return false;
+}
+
+/// Fail early with a clear reason when the path is not a readable, non-empty file.
+std::uintmax_t
+checkRegularNonEmptyFile(const std::string& path)
+{
+  std::error_code ec;
+  const fs::file_status status = fs::status(path, ec);
+  if (ec || !fs::exists(status))
+    throw ScanReadError(path, "file does not exist");
+  if (fs::is_directory(status))
+    throw ScanReadError(path, "cannot read scan: is a directory, not a file");
+  const std::uintmax_t size = fs::file_size(path, ec);
+  if (ec)
+    throw ScanReadError(path, "cannot read scan: " + ec.message());
+  if (size == 0)
+    throw ScanReadError(path, "empty file (0 bytes)");
+  std::ifstream probe(path, std::ios::binary);
+  if (!probe)
+    throw ScanReadError(path, "cannot open file for reading (permission denied?)");
+  return size;
+}
+
+/// KITTI .bin: one read of the whole file into a float buffer, then one pass.
+void
+readKittiBin(const std::string& path,
+             std::uintmax_t size_bytes,
+             pcl::PointCloud<pcl::PointXYZI>& cloud,
+             std::size_t& num_dropped)
+{
+  if (size_bytes % kKittiPointBytes != 0)
+    throw ScanReadError(path,
+                        "truncated KITTI .bin: size " + std::to_string(size_bytes) +
+                            " bytes is not a multiple of 16 (float32 x y z intensity)");
+  const std::size_t num_points = static_cast<std::size_t>(size_bytes / kKittiPointBytes);
+  std::vector<float> buffer(num_points * 4);
+  std::ifstream in(path, std::ios::binary);
+  if (!in)
+    throw ScanReadError(path, "cannot open file for reading");
+  in.read(reinterpret_cast<char*>(buffer.data()),
+          static_cast<std::streamsize>(num_points * kKittiPointBytes));
+  if (in.gcount() != static_cast<std::streamsize>(num_points * kKittiPointBytes))
+    throw ScanReadError(path,
+                        "read only " + std::to_string(in.gcount()) + " of " +
+                            std::to_string(size_bytes) + " bytes");
+  cloud.reserve(num_points);
+  for (std::size_t i = 0; i < num_points; ++i) {
+    const float* v = &buffer[4 * i];
+    pushIfFinite(cloud, v[0], v[1], v[2], v[3], num_dropped);
+  }
+}
+
+/// The value of type V stored (possibly unaligned) at \a p.
+template <typename V>
+inline V
+load(const std::uint8_t* p)
+{
+  V v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+
+/// Read one value of any PCLPointField numeric type as T (float for coordinates,
+/// double for times: an absolute time like 1.7e9 s keeps its microseconds only in
+/// double). NaN for an unknown type.
+template <typename T>
+inline T
+fieldAs(const std::uint8_t* p, std::uint8_t datatype)
+{
+  switch (datatype) {
+  case pcl::PCLPointField::INT8:
+    return static_cast<T>(load<std::int8_t>(p));
+  case pcl::PCLPointField::UINT8:
+    return static_cast<T>(load<std::uint8_t>(p));
+  case pcl::PCLPointField::INT16:
+    return static_cast<T>(load<std::int16_t>(p));
+  case pcl::PCLPointField::UINT16:
+    return static_cast<T>(load<std::uint16_t>(p));
+  case pcl::PCLPointField::INT32:
+    return static_cast<T>(load<std::int32_t>(p));
+  case pcl::PCLPointField::UINT32:
+    return static_cast<T>(load<std::uint32_t>(p));
+  case pcl::PCLPointField::INT64:
+    return static_cast<T>(load<std::int64_t>(p));
+  case pcl::PCLPointField::UINT64:
+    return static_cast<T>(load<std::uint64_t>(p));
+  case pcl::PCLPointField::FLOAT32:
+    return static_cast<T>(load<float>(p));
+  case pcl::PCLPointField::FLOAT64:
+    return static_cast<T>(load<double>(p));
+  default:
+    return std::numeric_limits<T>::quiet_NaN();
+  }
+}
+
+/// Whether a value of \a f lies inside a point of \a blob and has a numeric type.
+bool
+fieldFits(const pcl::PCLPointCloud2& blob, const pcl::PCLPointField& f)
+{
+  const std::size_t size = pcl::getFieldSize(f.datatype);
+  return size != 0 && f.offset + size <= blob.point_step;
+}
+
+const pcl::PCLPointField*
+findField(const pcl::PCLPointCloud2& blob, const std::vector<std::string>& names)
+{
+  for (const std::string& name : names)
+    for (const pcl::PCLPointField& f : blob.fields)
+      if (f.name == name)
+        return &f;
+  return nullptr;
+}
+
+/// Fields that may hold the time of each point, in the order they are looked for:
+/// Velodyne / rslidar (s), Ouster (ns), Hesai and others (often absolute s), Livox (ns).
+const std::vector<std::string> kTimeFieldNames = {
+    "time", "t", "timestamp", "time_stamp", "offset_time", "ts"};
+
+/// The raw times of the kept points, gathered while the blob is converted, with the
+/// counts that checkAndCentreTimes() needs, so that the blob is read only once.
+struct RawTimes
+{
+  /// The time field of the blob, or null when it has none or cannot read it.
+  const pcl::PCLPointField* field = nullptr;
+  /// Why a time field that is present cannot be read (empty otherwise).
+  std::string warning;
+  /// One raw value per kept point, in the cloud's order.
+  std::vector<double> values;
+  double min = std::numeric_limits<double>::infinity();
+  double max = -std::numeric_limits<double>::infinity();
+  std::size_t num_non_finite = 0;
+  /// Pairs of consecutive kept points in the same row, and how many of them go back.
+  std::size_t num_steps = 0;
+  std::size_t num_backward = 0;
+
+  /// A new row of an organized cloud: its first point is not compared to the last
+  /// point of the previous row.
+  void startRow() { row_started_ = false; }
+
+  void add(double t)
+  {
+    if (std::isfinite(t)) {
+      min = std::min(min, t);
+      max = std::max(max, t);
+    } else {
+      ++num_non_finite;
+    }
+    if (row_started_) {
+      ++num_steps;
+      if (t < values.back())
+        ++num_backward;
+    }
+    values.push_back(t);
+    row_started_ = true;
+  }
+
+private:
+  bool row_started_ = false;
+};
+
+
+/// Check the raw times, choose their unit and centre them on the middle of the sweep
+/// (relative in double, then float). Leaves \a out.times_s empty and says why in
+/// out.warning when they cannot be used.
+void
+checkAndCentreTimes(const RawTimes& raw, PointTimes& out)
+{
+  const std::string name = "field '" + raw.field->name + "'";
+  auto reject = [&out](const std::string& why) {
+    out.warning = "per-point times not used: " + why;
+  };
+  // Each check below ends with `return reject(...)`.
+  if (raw.values.empty()) { // no kept points: nothing to time
+    out.field = raw.field->name;
+    return;
+  }
+  if (raw.num_non_finite > 0)
+    return reject(name + " has " + std::to_string(raw.num_non_finite) + " of " +
+                  std::to_string(raw.values.size()) + " values NaN or infinite");
+  const double span = raw.max - raw.min;
+  if (!(span > 0.0))
+    return reject("all " + std::to_string(raw.values.size()) + " values of " + name +
+                  " are equal (" + std::to_string(raw.min) + "): no sweep to time");
+
+  // The unit: the first scale that makes the span a sweep of a 2-100 Hz LiDAR.
+  constexpr double kMinSweepS = 0.005;
+  constexpr double kMaxSweepS = 0.5;
+  double scale = 0.0;
+  for (double candidate : {1.0, 1e-3, 1e-6, 1e-9}) {
+    if (span * candidate >= kMinSweepS && span * candidate <= kMaxSweepS) {
+      scale = candidate;
+      break;
+    }
+  }
+  if (scale == 0.0) {
+    std::ostringstream why;
+    why << name << " spans " << span << " (from " << raw.min << " to " << raw.max
+        << "), which fits no unit: as s, ms, us or ns it is no sweep of " << kMinSweepS
+        << " to " << kMaxSweepS << " s";
+    return reject(why.str());
+  }
+
+  // Firing order: a driver writes points as they are measured.
+  constexpr double kMaxBackwardFraction = 0.01;
+  if (raw.num_steps > 0 &&
+      static_cast<double>(raw.num_backward) >
+          kMaxBackwardFraction * static_cast<double>(raw.num_steps)) {
+    std::ostringstream why;
+    why << name << " is not monotonic in storage order: " << raw.num_backward << " of "
+        << raw.num_steps << " steps between consecutive points go backwards (at most "
+        << kMaxBackwardFraction * 100.0
+        << " % allowed); the cloud was shuffled or filtered";
+    return reject(why.str());
+  }
+
+  const double mid = 0.5 * (raw.min + raw.max);
+  out.times_s.resize(raw.values.size());
+  for (std::size_t k = 0; k < raw.values.size(); ++k)
+    out.times_s[k] = static_cast<float>((raw.values[k] - mid) * scale);
+  out.field = raw.field->name;
+}
+
+/// Convert a PCD/PLY blob to x y z intensity, whatever the field types are; when
+/// \a times is not null and the blob has a time field, also gather the raw times of
+/// the kept points in the same pass.
+void
+blobToCloud(const std::string& path,
+            const pcl::PCLPointCloud2& blob,
+            pcl::PointCloud<pcl::PointXYZI>& cloud,
+            std::size_t& num_dropped,
+            RawTimes* times)
+{
+  const pcl::PCLPointField* fx = findField(blob, {"x"});
+  const pcl::PCLPointField* fy = findField(blob, {"y"});
+  const pcl::PCLPointField* fz = findField(blob, {"z"});
+  if (!fx || !fy || !fz)
+    throw ScanReadError(path, "no x, y and z fields");
+  const pcl::PCLPointField* fi = findField(
+      blob,
+      {"intensity", "scalar_intensity", "reflectance", "remission", "i", "Intensity"});
+
+  const std::size_t num_points = static_cast<std::size_t>(blob.width) * blob.height;
+  for (const pcl::PCLPointField* f : {fx, fy, fz, fi}) {
+    if (f && !fieldFits(blob, *f))
+      throw ScanReadError(path,
+                          "field '" + f->name + "' has an unsupported type or layout");
+  }
+  if (blob.height > 0 &&
+      (blob.row_step < static_cast<std::size_t>(blob.width) * blob.point_step ||
+       blob.data.size() < static_cast<std::size_t>(blob.row_step) * blob.height))
+    throw ScanReadError(path, "point data is shorter than the header says");
+
+  // A bad time field costs the times, not the scan.
+  const pcl::PCLPointField* ft = times ? findField(blob, kTimeFieldNames) : nullptr;
+  if (ft && !fieldFits(blob, *ft)) {
+    times->warning = "per-point times not used: field '" + ft->name +
+                     "' has an unsupported type or layout";
+    ft = nullptr;
+  }
+  if (ft) {
+    times->field = ft;
+    times->values.reserve(num_points);
+  }
+
+  cloud.reserve(num_points);
+  for (std::size_t r = 0; r < blob.height; ++r) {
+    const std::uint8_t* row = blob.data.data() + r * blob.row_step;
+    if (ft)
+      times->startRow();
+    for (std::size_t c = 0; c < blob.width; ++c) {
+      const std::uint8_t* pt = row + c * blob.point_step;
+      const float intensity = fi ? fieldAs<float>(pt + fi->offset, fi->datatype) : 0.0f;
+      const bool kept = pushIfFinite(cloud,
+                                     fieldAs<float>(pt + fx->offset, fx->datatype),
+                                     fieldAs<float>(pt + fy->offset, fy->datatype),
+                                     fieldAs<float>(pt + fz->offset, fz->datatype),
+                                     intensity,
+                                     num_dropped);
+      if (ft && kept)
+        times->add(fieldAs<double>(pt + ft->offset, ft->datatype));
+    }
+  }
+}
+
+/// The whole file in memory, read with one call.
+std::string
+readWholeFile(const std::string& path, std::uintmax_t size_bytes)
+{
+  std::string bytes(static_cast<std::size_t>(size_bytes), '\0');
+  std::ifstream in(path, std::ios::binary);
+  if (!in)
+    throw ScanReadError(path, "cannot open file for reading");
+  in.read(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  if (in.gcount() != static_cast<std::streamsize>(bytes.size()))
+    throw ScanReadError(path,
+                        "read only " + std::to_string(in.gcount()) + " of " +
+                            std::to_string(size_bytes) + " bytes");
+  return bytes;
+}
+
+/// PCD (ascii, binary, binary_compressed). The header and the data sizes are
+/// checked here before PCL parses the body: pcl::PCDReader::read crashes on some
+/// malformed files instead of reporting an error.
+void
+readPcd(const std::string& path, std::uintmax_t size_bytes, pcl::PCLPointCloud2& blob)
+{
+  const std::string bytes = readWholeFile(path, size_bytes);
+  std::istringstream stream(bytes);
+  pcl::PCDReader reader;
+  Eigen::Vector4f origin;
+  Eigen::Quaternionf orientation;
+  int version = 0;
+  int data_type = 0;
+  unsigned int data_idx = 0;
+  if (reader.readHeader(stream, blob, origin, orientation, version, data_type, data_idx) <
+          0 ||
+      blob.fields.empty() || blob.point_step == 0)
+    throw ScanReadError(path, "cannot parse .pcd file: invalid header (no FIELDS?)");
+  if (!findField(blob, {"x"}) || !findField(blob, {"y"}) || !findField(blob, {"z"}))
+    throw ScanReadError(path, "no x, y and z fields");
+  const std::uint64_t num_points = static_cast<std::uint64_t>(blob.width) * blob.height;
+  if (num_points == 0) {
+    blob.data.clear();
+    return;
+  }
+  if (data_idx > bytes.size())
+    throw ScanReadError(path,
+                        "cannot parse .pcd file: header runs past the end of the file");
+  const std::uint64_t available = bytes.size() - data_idx;
+  int status = -1;
+  if (data_type == 0) {
+    stream.clear();
+    stream.seekg(data_idx);
+    status = reader.readBodyASCII(stream, blob, version);
+  } else {
+    if (data_type == 1 && available < num_points * blob.point_step)
+      throw ScanReadError(path,
+                          "truncated binary .pcd: " + std::to_string(available) +
+                              " data bytes for " + std::to_string(num_points) +
+                              " points of " + std::to_string(blob.point_step) + " bytes");
+    if (data_type == 2) {
+      std::uint32_t compressed_size = 0;
+      if (available >= 8)
+        std::memcpy(&compressed_size, bytes.data() + data_idx, sizeof compressed_size);
+      if (available < 8 || available - 8 < compressed_size)
+        throw ScanReadError(path,
+                            "truncated binary_compressed .pcd: " +
+                                std::to_string(available) + " data bytes");
+    }
+    status = reader.readBodyBinary(reinterpret_cast<const unsigned char*>(bytes.data()),
+                                   blob,
+                                   version,
+                                   data_type == 2,
+                                   data_idx);
+  }
+  if (status < 0)
+    throw ScanReadError(path, "cannot parse .pcd file: malformed point data");
+}
+
+/// Load a PCD or PLY file and convert it; \a times as in blobToCloud().
+void
+readPclFile(const std::string& path,
+            const std::string& ext,
+            std::uintmax_t size_bytes,
+            pcl::PointCloud<pcl::PointXYZI>& cloud,
+            std::size_t& num_dropped,
+            PointTimes* times)
+{
+  pcl::PCLPointCloud2 blob;
+  try {
+    if (ext == ".pcd") {
+      readPcd(path, size_bytes, blob);
+    } else if (pcl::io::loadPLYFile(path, blob) < 0) {
+      throw ScanReadError(path, "cannot parse .ply file");
+    }
+  } catch (const ScanReadError&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw ScanReadError(path, "cannot parse " + ext + " file: " + e.what());
+  }
+  RawTimes raw;
+  blobToCloud(path, blob, cloud, num_dropped, times ? &raw : nullptr);
+  if (!times)
+    return;
+  times->warning = raw.warning;
+  if (raw.field)
+    checkAndCentreTimes(raw, *times);
+}
+
+} // namespace
+
+pcl::PointCloud<pcl::PointXYZI>::Ptr
+readScanAndTimes(const std::string& path,
+                 std::size_t* num_dropped_non_finite,
+                 PointTimes* times)
+{
+  const std::string ext = lowerExtension(path);
+  if (!isScanExtension(ext))
+    throw ScanReadError(
+        path, "unsupported scan extension '" + ext + "' (expected .bin, .pcd or .ply)");
+  const std::uintmax_t size_bytes = checkRegularNonEmptyFile(path);
+
+  auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+  std::size_t num_dropped = 0;
+  if (ext == ".bin")
+    readKittiBin(path, size_bytes, *cloud, num_dropped);
+  else
+    readPclFile(path, ext, size_bytes, *cloud, num_dropped, times);
+  cloud->width = static_cast<std::uint32_t>(cloud->size());
+  cloud->height = 1;
+  cloud->is_dense = true;
+  if (num_dropped_non_finite)
+    *num_dropped_non_finite = num_dropped;
+  return cloud;
+}
+
+} // namespace io_detail
+
+pcl::PointCloud<pcl::PointXYZI>::Ptr
+readScan(const std::string& path, std::size_t* num_dropped_non_finite)
+{
+  return io_detail::readScanAndTimes(path, num_dropped_non_finite, nullptr);
+}
+
+void
+writeKittiBin(const std::string& path, const pcl::PointCloud<pcl::PointXYZI>& cloud)
+{
+  // float32 x y z intensity per point, written through pose_io's atomic writer.
+  std::string bytes(cloud.size() * 4 * sizeof(float), '\0');
+  char* out = bytes.data();
+  for (const pcl::PointXYZI& p : cloud) {
+    const float values[4] = {p.x, p.y, p.z, p.intensity};
+    std::memcpy(out, values, sizeof(values));
+    out += sizeof(values);
+  }
+  writeFileAtomically(path, bytes);
+}
+
+} // namespace rast
+} // namespace pcl
