@@ -89,6 +89,22 @@ LocalMapping::processKeyFrame(const KeyFrame::Ptr& kf)
   LocalMappingResult result;
   result.keyframe = kf->id;
 
+  associate(kf, result);
+  const std::vector<KeyFrameId> window = windowOf(kf->id);
+  if (params_.enable_bundle_adjustment && window.size() >= 2)
+    adjustWindow(window, result);
+
+  // 5. Map-point culling (paper 8.1): points seen by none of the window's key-frames go.
+  result.num_culled = static_cast<int>(map_->cullMapPoints(window));
+  result.num_map_points = static_cast<int>(map_->numMapPoints());
+  result.total_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  return result;
+}
+
+void
+LocalMapping::associate(const KeyFrame::Ptr& kf, LocalMappingResult& result)
+{
   // 1. Associate the key-frame's features with the local map (paper 8.1): each map point
   // is predicted into the key-frame by its pose; candidates are the features within
   // match_radius_m, the best Hamming distance wins; a feature keeps its best point.
@@ -134,74 +150,73 @@ LocalMapping::processKeyFrame(const KeyFrame::Ptr& kf)
       ++result.num_created;
     }
   }
+}
 
-  // 3. The window: the newest n key-frames (key-frame culling: older ones leave it).
+std::vector<KeyFrameId>
+LocalMapping::windowOf(KeyFrameId newest) const
+{
+  // The newest n key-frames (key-frame culling: older ones leave it).
   std::vector<KeyFrameId> window;
   const KeyFrameId first =
-      kf->id + 1 >= static_cast<KeyFrameId>(params_.window_size) ? kf->id + 1 - params_.window_size : 0;
-  for (KeyFrameId id = first; id <= kf->id; ++id)
+      newest + 1 >= static_cast<KeyFrameId>(params_.window_size) ? newest + 1 - params_.window_size : 0;
+  for (KeyFrameId id = first; id <= newest; ++id)
     window.push_back(id);
+  return window;
+}
 
-  // 4. Local bundle adjustment over the window and the map points it sees.
-  if (params_.enable_bundle_adjustment && window.size() >= 2) {
-    const std::uint64_t epoch = map_->correctionEpoch();
-    const std::vector<MapPoint> points = map_->mapPointsSeenBy(window);
-    const std::set<KeyFrameId> in_window(window.begin(), window.end());
-    BundleAdjustmentProblem problem;
+void
+LocalMapping::adjustWindow(const std::vector<KeyFrameId>& window, LocalMappingResult& result)
+{
+  // Local bundle adjustment over the window and the map points it sees.
+  const std::uint64_t epoch = map_->correctionEpoch();
+  const std::vector<MapPoint> points = map_->mapPointsSeenBy(window);
+  const std::set<KeyFrameId> in_window(window.begin(), window.end());
+  BundleAdjustmentProblem problem;
+  for (KeyFrameId id : window)
+    problem.poses[id] = map_->keyFramePose(id);
+  // Border: older key-frames that see the window's points, newest first, held constant.
+  std::set<KeyFrameId, std::greater<KeyFrameId>> border_candidates;
+  for (const MapPoint& mp : points)
+    for (const auto& o : mp.observations)
+      if (!in_window.count(o.keyframe))
+        border_candidates.insert(o.keyframe);
+  std::set<KeyFrameId> border;
+  for (KeyFrameId id : border_candidates) {
+    if (static_cast<int>(border.size()) >= params_.max_border_keyframes)
+      break;
+    border.insert(id);
+    problem.poses[id] = map_->keyFramePose(id);
+  }
+  // Gauge: the border key-frames are held constant: they were optimized before and
+  // anchor the window to the rest of the map; the error only depends on relative poses,
+  // so without an anchor the window could drift freely. Without a border (the start of
+  // the sequence) the oldest window key-frame is held constant instead; key-frame 0
+  // (the world frame's origin) is never moved.
+  problem.fixed = border;
+  if (problem.fixed.empty() || in_window.count(0))
+    problem.fixed.insert(window.front());
+  for (const MapPoint& mp : points) {
+    problem.points[mp.id] = mp.p_world;
+    for (const auto& o : mp.observations)
+      if (problem.poses.count(o.keyframe))
+        problem.observations.push_back({o.keyframe, mp.id, o.p_keyframe.cast<double>()});
+  }
+  result.ba = bundleAdjust(problem, params_.bundle_adjustment);
+  result.ba_run = true;
+  if (result.ba.success) {
+    std::map<KeyFrameId, Pose3d> moved;
     for (KeyFrameId id : window)
-      problem.poses[id] = map_->keyFramePose(id);
-    // Border: older key-frames that see the window's points, newest first, held constant.
-    std::set<KeyFrameId, std::greater<KeyFrameId>> border_candidates;
-    for (const MapPoint& mp : points)
-      for (const auto& o : mp.observations)
-        if (!in_window.count(o.keyframe))
-          border_candidates.insert(o.keyframe);
-    std::set<KeyFrameId> border;
-    for (KeyFrameId id : border_candidates) {
-      if (static_cast<int>(border.size()) >= params_.max_border_keyframes)
-        break;
-      border.insert(id);
-      problem.poses[id] = map_->keyFramePose(id);
-    }
-    // Gauge: the border key-frames are held constant: they were optimized before and
-    // anchor the window to the rest of the map; the error only depends on relative poses,
-    // so without an anchor the window could drift freely. Without a border (the start of
-    // the sequence) the oldest window key-frame is held constant instead; key-frame 0
-    // (the world frame's origin) is never moved.
-    problem.fixed = border;
-    if (problem.fixed.empty() || in_window.count(0))
-      problem.fixed.insert(window.front());
-    for (const MapPoint& mp : points) {
-      problem.points[mp.id] = mp.p_world;
-      for (const auto& o : mp.observations)
-        if (problem.poses.count(o.keyframe))
-          problem.observations.push_back({o.keyframe, mp.id, o.p_keyframe.cast<double>()});
-    }
-    const std::map<KeyFrameId, Pose3d> before = problem.poses;
-    result.ba = bundleAdjust(problem, params_.bundle_adjustment);
-    result.ba_run = true;
-    if (result.ba.success) {
-      std::map<KeyFrameId, Pose3d> moved;
-      for (KeyFrameId id : window)
-        if (!problem.fixed.count(id))
-          moved[id] = problem.poses[id];
-      result.ba_applied = map_->applyBundleAdjustment(epoch, moved, problem.points);
-      if (result.ba_applied) {
-        // The refined relative poses become the odometry edges of the pose graph.
-        std::map<KeyFrameId, Pose3d> edges;
-        for (std::size_t k = 1; k < window.size(); ++k)
-          edges[window[k]] = problem.poses[window[k - 1]].inverse() * problem.poses[window[k]];
-        map_->setOdometryEdges(edges);
-      }
+      if (!problem.fixed.count(id))
+        moved[id] = problem.poses[id];
+    result.ba_applied = map_->applyBundleAdjustment(epoch, moved, problem.points);
+    if (result.ba_applied) {
+      // The refined relative poses become the odometry edges of the pose graph.
+      std::map<KeyFrameId, Pose3d> edges;
+      for (std::size_t k = 1; k < window.size(); ++k)
+        edges[window[k]] = problem.poses[window[k - 1]].inverse() * problem.poses[window[k]];
+      map_->setOdometryEdges(edges);
     }
   }
-
-  // 5. Map-point culling (paper 8.1): points seen by none of the window's key-frames go.
-  result.num_culled = static_cast<int>(map_->cullMapPoints(window));
-  result.num_map_points = static_cast<int>(map_->numMapPoints());
-  result.total_ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-  return result;
 }
 
 } // namespace rast

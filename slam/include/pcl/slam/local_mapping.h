@@ -13,6 +13,7 @@
 #include <cstddef>
 #include <memory>
 #include <string>
+#include <vector>
 
 namespace pcl {
 namespace rast {
@@ -72,6 +73,14 @@ public:
   const LocalMappingParams& params() const { return params_; }
 
 private:
+  /// Steps 1-2: the key-frame's features matched with the local map's points (predicted
+  /// into it, nearest descriptor within match_radius_m); the others make new points.
+  void associate(const KeyFrame::Ptr& kf, LocalMappingResult& result);
+  /// Step 3: the newest window_size key-frames up to \a newest.
+  std::vector<KeyFrameId> windowOf(KeyFrameId newest) const;
+  /// Step 4: local bundle adjustment of the window, its border held constant.
+  void adjustWindow(const std::vector<KeyFrameId>& window, LocalMappingResult& result);
+
   LocalMappingParams params_;
   SlamMap::Ptr map_;
 };
