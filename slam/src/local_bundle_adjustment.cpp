@@ -167,8 +167,10 @@ reprojectionRmsPx(const BundleAdjustmentProblem& problem, const BundleAdjustment
   return n ? std::sqrt(sum / n) : 0.0;
 }
 
-BundleAdjustmentSummary
-bundleAdjust(BundleAdjustmentProblem& problem, const BundleAdjustmentParams& params)
+namespace {
+
+void
+checkProblem(const BundleAdjustmentProblem& problem, const BundleAdjustmentParams& params)
 {
   std::string why;
   if (!params.isValid(&why))
@@ -181,23 +183,19 @@ bundleAdjust(BundleAdjustmentProblem& problem, const BundleAdjustmentParams& par
   for (const auto& c : problem.pose_constraints)
     if (!problem.poses.count(c.a) || !problem.poses.count(c.b))
       throw std::invalid_argument("bundleAdjust: pose constraint of unknown key-frame");
+}
 
-  const auto start = std::chrono::steady_clock::now();
-  BundleAdjustmentSummary summary;
-
-  // 1. Build the problem. Parameter blocks live in these maps (stable addresses).
-  std::map<KeyFrameId, PoseBlock> pose_blocks;
-  for (const auto& [id, T] : problem.poses)
-    pose_blocks[id] = PoseBlock{Eigen::Quaterniond(T.rotation()).normalized(), T.translation()};
-  std::map<MapPointId, Eigen::Vector3d> point_blocks = problem.points;
-
-  ceres::Problem::Options problem_options;
-  problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  ceres::Problem ceres_problem(problem_options);
-  ceres::EigenQuaternionManifold quaternion_manifold;
+/// Step 1: a reprojection residual (Huber) per observation, a relative-pose residual
+/// per constraint, on the parameter blocks in \a pose_blocks and \a point_blocks.
+void
+addResiduals(const BundleAdjustmentProblem& problem,
+             const BundleAdjustmentParams& params,
+             std::map<KeyFrameId, PoseBlock>& pose_blocks,
+             std::map<MapPointId, Eigen::Vector3d>& point_blocks,
+             ceres::Problem& ceres_problem)
+{
   ceres::HuberLoss* huber = new ceres::HuberLoss(params.huber_delta_px); // owned by problem
   bool huber_used = false;
-
   for (const auto& obs : problem.observations) {
     PoseBlock& pose = pose_blocks[obs.keyframe];
     ceres_problem.AddResidualBlock(
@@ -220,16 +218,18 @@ bundleAdjust(BundleAdjustmentProblem& problem, const BundleAdjustmentParams& par
   }
   if (!huber_used)
     delete huber;
-  summary.num_residuals = ceres_problem.NumResidualBlocks();
-  if (summary.num_residuals == 0) {
-    summary.success = true;
-    summary.message = "nothing to optimize";
-    return summary;
-  }
+}
 
-  // 2. Gauge: the poses in `fixed` (the window's border) stay constant. Without any,
-  // the whole problem could slide and rotate freely (the error only depends on
-  // relative poses), so the smallest id is held constant.
+/// Step 2: gauge. The poses in `fixed` (the window's border) stay constant. Without any,
+/// the whole problem could slide and rotate freely (the error only depends on relative
+/// poses), so the smallest id is held constant.
+void
+fixGauge(const BundleAdjustmentProblem& problem,
+         std::map<KeyFrameId, PoseBlock>& pose_blocks,
+         ceres::Manifold& quaternion_manifold,
+         ceres::Problem& ceres_problem,
+         BundleAdjustmentSummary& summary)
+{
   std::set<KeyFrameId> fixed = problem.fixed;
   if (fixed.empty())
     fixed.insert(pose_blocks.begin()->first);
@@ -246,13 +246,20 @@ bundleAdjust(BundleAdjustmentProblem& problem, const BundleAdjustmentParams& par
       ++summary.num_poses;
     }
   }
-  summary.num_points = static_cast<int>(point_blocks.size());
+}
 
-  // 3. Solve: the Schur complement eliminates the points (points first). A local window
-  // has few poses: the dense reduced system (Eigen) is fast and bit-for-bit
-  // reproducible, unlike a multithreaded sparse factorization.
+/// Step 3: the Schur complement eliminates the points (points first). A local window
+/// has few poses: the dense reduced system (Eigen) is fast and bit-for-bit reproducible,
+/// unlike a multithreaded sparse factorization.
+ceres::Solver::Options
+solverOptions(const BundleAdjustmentParams& params,
+              int num_poses,
+              std::map<KeyFrameId, PoseBlock>& pose_blocks,
+              std::map<MapPointId, Eigen::Vector3d>& point_blocks,
+              const ceres::Problem& ceres_problem)
+{
   ceres::Solver::Options options;
-  options.linear_solver_type = summary.num_poses <= 64 ? ceres::DENSE_SCHUR : ceres::SPARSE_SCHUR;
+  options.linear_solver_type = num_poses <= 64 ? ceres::DENSE_SCHUR : ceres::SPARSE_SCHUR;
   options.max_num_iterations = params.max_iterations;
   options.num_threads = params.num_threads;
   options.function_tolerance = params.function_tolerance;
@@ -268,7 +275,40 @@ bundleAdjust(BundleAdjustmentProblem& problem, const BundleAdjustmentParams& par
       ordering->AddElementToGroup(pose.t.data(), 1);
     }
   options.linear_solver_ordering = ordering;
+  return options;
+}
 
+} // namespace
+
+BundleAdjustmentSummary
+bundleAdjust(BundleAdjustmentProblem& problem, const BundleAdjustmentParams& params)
+{
+  checkProblem(problem, params);
+  const auto start = std::chrono::steady_clock::now();
+  BundleAdjustmentSummary summary;
+
+  // Parameter blocks live in these maps (stable addresses).
+  std::map<KeyFrameId, PoseBlock> pose_blocks;
+  for (const auto& [id, T] : problem.poses)
+    pose_blocks[id] = PoseBlock{Eigen::Quaterniond(T.rotation()).normalized(), T.translation()};
+  std::map<MapPointId, Eigen::Vector3d> point_blocks = problem.points;
+  ceres::Problem::Options problem_options;
+  problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem ceres_problem(problem_options);
+  ceres::EigenQuaternionManifold quaternion_manifold;
+
+  addResiduals(problem, params, pose_blocks, point_blocks, ceres_problem);
+  summary.num_residuals = ceres_problem.NumResidualBlocks();
+  if (summary.num_residuals == 0) {
+    summary.success = true;
+    summary.message = "nothing to optimize";
+    return summary;
+  }
+  fixGauge(problem, pose_blocks, quaternion_manifold, ceres_problem, summary);
+  summary.num_points = static_cast<int>(point_blocks.size());
+
+  const ceres::Solver::Options options =
+      solverOptions(params, summary.num_poses, pose_blocks, point_blocks, ceres_problem);
   ceres::Solver::Summary ceres_summary;
   ceres::Solve(options, &ceres_problem, &ceres_summary);
   summary.initial_cost = ceres_summary.initial_cost;
@@ -277,7 +317,7 @@ bundleAdjust(BundleAdjustmentProblem& problem, const BundleAdjustmentParams& par
   summary.message = ceres_summary.message;
   summary.success = ceres_summary.IsSolutionUsable() && std::isfinite(ceres_summary.final_cost);
 
-  // 4. Write back.
+  // Write back.
   if (summary.success) {
     for (auto& [id, pose] : pose_blocks) {
       Pose3d T = Pose3d::Identity();
