@@ -9,7 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
-#include <pcl/registration/hamming_correspondence_estimation.h>
+#include <pcl/registration/hamming_matching.h>
 
 namespace pcl {
 namespace rast {

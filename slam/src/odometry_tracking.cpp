@@ -11,7 +11,7 @@
 #include <algorithm>
 #include <cmath>
 #include <pcl/common/io.h>
-#include <pcl/registration/hamming_correspondence_estimation.h>
+#include <pcl/registration/hamming_matching.h>
 
 namespace pcl {
 namespace rast {

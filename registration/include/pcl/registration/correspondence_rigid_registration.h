@@ -5,7 +5,7 @@
 /// \ingroup registration
 
 #include <pcl/features/raster_feature_types.h>
-#include <pcl/registration/hamming_correspondence_estimation.h>
+#include <pcl/registration/hamming_matching.h>
 #include <pcl/registration/point_to_plane_refinement.h>
 #include <pcl/registration/rigid_ransac.h>
 

@@ -6,7 +6,7 @@
 /// \ingroup slam
 
 #include <pcl/rast/rigid_pose.h>
-#include <pcl/registration/hamming_correspondence_estimation.h>
+#include <pcl/registration/hamming_matching.h>
 #include <pcl/registration/point_to_plane_refinement.h>
 #include <pcl/registration/rigid_ransac.h>
 #include <pcl/slam/keyframe.h>
