@@ -127,6 +127,130 @@ addMarker(vtkRenderer* renderer,
 
 /// Render the scene (points, lines, markers; no overlays) with VTK offscreen on the X
 /// display \a display. Fills \a bgr. Runs in the forked child.
+namespace {
+
+/// Map points: one poly-vertex cell, direct RGB colours.
+void
+addMapPoints(vtkRenderer* renderer, const Scene& s, const MapRenderParams& params)
+{
+  if (s.points.empty())
+    return;
+  auto points = vtkSmartPointer<vtkPoints>::New();
+  points->SetDataTypeToFloat();
+  points->SetNumberOfPoints(static_cast<vtkIdType>(s.points.size()));
+  auto colours = vtkSmartPointer<vtkUnsignedCharArray>::New();
+  colours->SetNumberOfComponents(3);
+  colours->SetNumberOfTuples(static_cast<vtkIdType>(s.points.size()));
+  auto verts = vtkSmartPointer<vtkCellArray>::New();
+  verts->InsertNextCell(static_cast<vtkIdType>(s.points.size()));
+  for (std::size_t i = 0; i < s.points.size(); ++i) {
+    const auto id = static_cast<vtkIdType>(i);
+    points->SetPoint(id, s.points[i].x(), s.points[i].y(), s.points[i].z());
+    const cv::Vec3b& c = s.point_bgr[i];
+    const unsigned char rgb[3] = {c[2], c[1], c[0]};
+    colours->SetTypedTuple(id, rgb);
+    verts->InsertCellPoint(id);
+  }
+  auto cloud = vtkSmartPointer<vtkPolyData>::New();
+  cloud->SetPoints(points);
+  cloud->SetVerts(verts);
+  cloud->GetPointData()->SetScalars(colours);
+  renderer->AddActor(makeActor(cloud, RgbColour{}, params.point_size_px, true));
+}
+
+/// Lines and markers float above the map, in drawing order.
+void
+addLinesAndMarkers(vtkRenderer* renderer, const Scene& s, const MapRenderParams& params)
+{
+  const TopDownView& v = s.view;
+  const double z = s.z_top_m;
+  if (s.ground_truth.size() >= 2)
+    renderer->AddActor(makeActor(makeLines(s.ground_truth, z + 1.0, false, false),
+                                 params.ground_truth_colour,
+                                 params.ground_truth_width_px,
+                                 false));
+  if (s.trajectory.size() >= 2)
+    renderer->AddActor(makeActor(makeLines(s.trajectory, z + 2.0, false, false),
+                                 params.trajectory_colour,
+                                 params.trajectory_width_px,
+                                 false));
+  if (!s.loop_edges.empty()) {
+    std::vector<Eigen::Vector3d> ends;
+    for (const auto& e : s.loop_edges)
+      ends.push_back(e.first), ends.push_back(e.second);
+    renderer->AddActor(makeActor(makeLines(ends, z + 3.0, true, false),
+                                 params.loop_edge_colour,
+                                 params.loop_edge_width_px,
+                                 false));
+  }
+  if (params.draw_start_end_markers && !s.trajectory.empty()) {
+    const double r_m = params.marker_size_px * v.m_per_px;
+    const auto outline = static_cast<float>(std::max(1.0, 2.0 * s.layout.scale));
+    addMarker(renderer, s.trajectory.back(), r_m, true, kEndColour, z + 4.0, outline);
+    addMarker(renderer, s.trajectory.front(), r_m, false, kStartColour, z + 6.0, outline);
+  }
+}
+
+/// Orthographic camera looking down -z, north (+y) up, fitted by prepareScene().
+void
+setTopDownCamera(vtkRenderer* renderer, const Scene& s)
+{
+  const TopDownView& v = s.view;
+  const double z = s.z_top_m;
+  vtkCamera* camera = renderer->GetActiveCamera();
+  const double cam_z = z + 20.0;
+  camera->ParallelProjectionOn();
+  camera->SetFocalPoint(v.cam_x_m, v.cam_y_m, s.z_min_m);
+  camera->SetPosition(v.cam_x_m, v.cam_y_m, cam_z);
+  camera->SetViewUp(0.0, 1.0, 0.0);
+  camera->SetParallelScale(0.5 * v.height_px * v.m_per_px);
+  camera->SetClippingRange(0.1, cam_z - s.z_min_m + 1.0);
+}
+
+/// The rendered image of \a window as BGR rows top-down in \a bgr; false (and why)
+/// on a VTK error or an image of the wrong size.
+bool
+grabImage(vtkRenderWindow* window,
+          const TopDownView& v,
+          const std::string& vtk_errors,
+          cv::Mat* bgr,
+          std::string* why)
+{
+  auto grab = vtkSmartPointer<vtkWindowToImageFilter>::New();
+  grab->SetInput(window);
+  grab->SetInputBufferTypeToRGB();
+  grab->ReadFrontBufferOff();
+  grab->Update();
+  vtkImageData* image = grab->GetOutput();
+  int dims[3] = {0, 0, 0};
+  image->GetDimensions(dims);
+  auto* scalars = image->GetPointData() ? image->GetPointData()->GetScalars() : nullptr;
+  if (!vtk_errors.empty()) {
+    *why = "VTK: " + vtk_errors;
+    return false;
+  }
+  if (dims[0] != v.width_px || dims[1] != v.height_px || !scalars ||
+      scalars->GetNumberOfComponents() != 3) {
+    *why = "VTK returned a " + std::to_string(dims[0]) + " x " + std::to_string(dims[1]) +
+           " image instead of " + std::to_string(v.width_px) + " x " +
+           std::to_string(v.height_px);
+    return false;
+  }
+  // VTK rows run bottom-up, RGB; OpenCV top-down, BGR.
+  const auto* rgb = static_cast<const unsigned char*>(image->GetScalarPointer());
+  *bgr = cv::Mat(v.height_px, v.width_px, CV_8UC3);
+  for (int row = 0; row < v.height_px; ++row) {
+    const unsigned char* src = rgb + 3 * static_cast<std::size_t>(v.width_px) *
+                                         static_cast<std::size_t>(v.height_px - 1 - row);
+    auto* dst = bgr->ptr<cv::Vec3b>(row);
+    for (int col = 0; col < v.width_px; ++col)
+      dst[col] = cv::Vec3b(src[3 * col + 2], src[3 * col + 1], src[3 * col]);
+  }
+  return true;
+}
+
+} // namespace
+
 bool
 renderSceneVtk(const Scene& s,
                const MapRenderParams& params,
@@ -172,102 +296,11 @@ renderSceneVtk(const Scene& s,
                             params.background.b / 255.0);
     window->AddRenderer(renderer);
 
-    // Map points: one poly-vertex cell, direct RGB colours.
-    if (!s.points.empty()) {
-      auto points = vtkSmartPointer<vtkPoints>::New();
-      points->SetDataTypeToFloat();
-      points->SetNumberOfPoints(static_cast<vtkIdType>(s.points.size()));
-      auto colours = vtkSmartPointer<vtkUnsignedCharArray>::New();
-      colours->SetNumberOfComponents(3);
-      colours->SetNumberOfTuples(static_cast<vtkIdType>(s.points.size()));
-      auto verts = vtkSmartPointer<vtkCellArray>::New();
-      verts->InsertNextCell(static_cast<vtkIdType>(s.points.size()));
-      for (std::size_t i = 0; i < s.points.size(); ++i) {
-        const auto id = static_cast<vtkIdType>(i);
-        points->SetPoint(id, s.points[i].x(), s.points[i].y(), s.points[i].z());
-        const cv::Vec3b& c = s.point_bgr[i];
-        const unsigned char rgb[3] = {c[2], c[1], c[0]};
-        colours->SetTypedTuple(id, rgb);
-        verts->InsertCellPoint(id);
-      }
-      auto cloud = vtkSmartPointer<vtkPolyData>::New();
-      cloud->SetPoints(points);
-      cloud->SetVerts(verts);
-      cloud->GetPointData()->SetScalars(colours);
-      renderer->AddActor(makeActor(cloud, RgbColour{}, params.point_size_px, true));
-    }
-
-    // Lines and markers float above the map, in drawing order.
-    const double z = s.z_top_m;
-    if (s.ground_truth.size() >= 2)
-      renderer->AddActor(makeActor(makeLines(s.ground_truth, z + 1.0, false, false),
-                                   params.ground_truth_colour,
-                                   params.ground_truth_width_px,
-                                   false));
-    if (s.trajectory.size() >= 2)
-      renderer->AddActor(makeActor(makeLines(s.trajectory, z + 2.0, false, false),
-                                   params.trajectory_colour,
-                                   params.trajectory_width_px,
-                                   false));
-    if (!s.loop_edges.empty()) {
-      std::vector<Eigen::Vector3d> ends;
-      for (const auto& e : s.loop_edges)
-        ends.push_back(e.first), ends.push_back(e.second);
-      renderer->AddActor(makeActor(makeLines(ends, z + 3.0, true, false),
-                                   params.loop_edge_colour,
-                                   params.loop_edge_width_px,
-                                   false));
-    }
-    if (params.draw_start_end_markers && !s.trajectory.empty()) {
-      const double r_m = params.marker_size_px * v.m_per_px;
-      const auto outline = static_cast<float>(std::max(1.0, 2.0 * s.layout.scale));
-      addMarker(renderer, s.trajectory.back(), r_m, true, kEndColour, z + 4.0, outline);
-      addMarker(
-          renderer, s.trajectory.front(), r_m, false, kStartColour, z + 6.0, outline);
-    }
-
-    // Orthographic camera looking down -z, north (+y) up, fitted by prepareScene().
-    vtkCamera* camera = renderer->GetActiveCamera();
-    const double cam_z = z + 20.0;
-    camera->ParallelProjectionOn();
-    camera->SetFocalPoint(v.cam_x_m, v.cam_y_m, s.z_min_m);
-    camera->SetPosition(v.cam_x_m, v.cam_y_m, cam_z);
-    camera->SetViewUp(0.0, 1.0, 0.0);
-    camera->SetParallelScale(0.5 * v.height_px * v.m_per_px);
-    camera->SetClippingRange(0.1, cam_z - s.z_min_m + 1.0);
-
+    addMapPoints(renderer, s, params);
+    addLinesAndMarkers(renderer, s, params);
+    setTopDownCamera(renderer, s);
     window->Render();
-    auto grab = vtkSmartPointer<vtkWindowToImageFilter>::New();
-    grab->SetInput(window);
-    grab->SetInputBufferTypeToRGB();
-    grab->ReadFrontBufferOff();
-    grab->Update();
-    vtkImageData* image = grab->GetOutput();
-    int dims[3] = {0, 0, 0};
-    image->GetDimensions(dims);
-    auto* scalars = image->GetPointData() ? image->GetPointData()->GetScalars() : nullptr;
-    if (!vtk_errors.empty()) {
-      *why = "VTK: " + vtk_errors;
-      ok = false;
-    } else if (dims[0] != v.width_px || dims[1] != v.height_px || !scalars ||
-               scalars->GetNumberOfComponents() != 3) {
-      *why = "VTK returned a " + std::to_string(dims[0]) + " x " +
-             std::to_string(dims[1]) + " image instead of " + std::to_string(v.width_px) +
-             " x " + std::to_string(v.height_px);
-      ok = false;
-    } else {
-      // VTK rows run bottom-up, RGB; OpenCV top-down, BGR.
-      const auto* rgb = static_cast<const unsigned char*>(image->GetScalarPointer());
-      *bgr = cv::Mat(v.height_px, v.width_px, CV_8UC3);
-      for (int row = 0; row < v.height_px; ++row) {
-        const unsigned char* src =
-            rgb + 3 * static_cast<std::size_t>(v.width_px) *
-                      static_cast<std::size_t>(v.height_px - 1 - row);
-        auto* dst = bgr->ptr<cv::Vec3b>(row);
-        for (int col = 0; col < v.width_px; ++col)
-          dst[col] = cv::Vec3b(src[3 * col + 2], src[3 * col + 1], src[3 * col]);
-      }
-    }
+    ok = grabImage(window, v, vtk_errors, bgr, why);
     window->Finalize();
   }
   XCloseDisplay(x_display);
@@ -289,6 +322,143 @@ writeAll(int fd, const void* data, std::size_t size)
   }
   return true;
 }
+
+namespace {
+
+/// The forked child: render, send [ok][n][message][pixels] on \a data_fd, exit.
+[[noreturn]] void
+renderInChild(const Scene& s,
+              const MapRenderParams& params,
+              const std::string& display,
+              int data_fd,
+              int err_fd)
+{
+  ::prctl(PR_SET_PDEATHSIG, SIGKILL);
+  ::dup2(err_fd, 2); // VTK, Mesa and Xlib complain on stderr
+  std::int32_t ok = 0;
+  std::string message;
+  cv::Mat image;
+  try {
+    ok = renderSceneVtk(s, params, display, &image, &message) ? 1 : 0;
+  } catch (const std::exception& e) {
+    message = e.what();
+  } catch (...) {
+    message = "unknown exception";
+  }
+  message = message.substr(0, 4000);
+  const auto n = static_cast<std::int32_t>(message.size());
+  bool sent = writeAll(data_fd, &ok, sizeof(ok)) && writeAll(data_fd, &n, sizeof(n)) &&
+              writeAll(data_fd, message.data(), message.size());
+  if (sent && ok)
+    sent = writeAll(data_fd, image.data, image.total() * image.elemSize());
+  ::_exit(sent ? 0 : 1); // no atexit handlers, no flushing of the parent's buffers
+}
+
+/// Read both pipes until the data pipe closes or \a timeout_s passes (then true).
+bool
+readChildOutput(
+    int data_fd, int err_fd, double timeout_s, std::string& data, std::string& errors)
+{
+  const auto start = Clock::now();
+  bool data_open = true, err_open = true, timed_out = false;
+  while (data_open) {
+    const double left_s = timeout_s - secondsSince(start);
+    if (left_s <= 0.0) {
+      timed_out = true;
+      break;
+    }
+    pollfd pfds[2] = {{data_fd, POLLIN, 0}, {err_open ? err_fd : -1, POLLIN, 0}};
+    const int r =
+        ::poll(pfds, 2, static_cast<int>(std::min(1000.0, std::ceil(left_s * 1000.0))));
+    if (r < 0 && errno != EINTR)
+      break;
+    char buf[1 << 16];
+    if (pfds[0].revents) {
+      const ssize_t n = ::read(data_fd, buf, sizeof(buf));
+      if (n > 0)
+        data.append(buf, static_cast<std::size_t>(n));
+      else if (n == 0 || errno != EINTR)
+        data_open = false;
+    }
+    if (err_open && pfds[1].revents) {
+      const ssize_t n = ::read(err_fd, buf, sizeof(buf));
+      if (n > 0) {
+        errors.append(buf, static_cast<std::size_t>(n));
+        if (errors.size() > 8192)
+          errors.erase(0, errors.size() - 8192);
+      } else if (n == 0 || errno != EINTR)
+        err_open = false;
+    }
+  }
+  return timed_out;
+}
+
+/// A short excerpt of what the child printed, for the message.
+std::string
+stderrTail(const std::string& errors)
+{
+  std::string t;
+  for (std::size_t i = 0; i < errors.size(); ++i) { // drop ANSI colour codes
+    if (errors[i] == '\x1b' && i + 1 < errors.size() && errors[i + 1] == '[') {
+      i += 2;
+      while (i < errors.size() && !std::isalpha(static_cast<unsigned char>(errors[i])))
+        ++i;
+    } else
+      t += errors[i];
+  }
+  while (!t.empty() && std::isspace(static_cast<unsigned char>(t.back())))
+    t.pop_back();
+  if (t.size() > 400)
+    t = "..." + t.substr(t.size() - 400);
+  for (char& c : t)
+    if (c == '\n')
+      c = ' ';
+  return t.empty() ? std::string() : " [stderr: " + t + "]";
+}
+
+/// The child's reply: the image in \a bgr, or why not.
+bool
+decodeReply(const std::string& data,
+            const std::string& errors,
+            int status,
+            const Scene& s,
+            cv::Mat* bgr,
+            std::string* why)
+{
+  std::int32_t ok = 0, n = 0;
+  if (data.size() < 2 * sizeof(std::int32_t)) {
+    *why =
+        "VTK render process died (" + describeStatus(status) + ")" + stderrTail(errors);
+    return false;
+  }
+  std::memcpy(&ok, data.data(), sizeof(ok));
+  std::memcpy(&n, data.data() + sizeof(ok), sizeof(n));
+  const std::size_t header = 2 * sizeof(std::int32_t);
+  if (n < 0 || data.size() < header + static_cast<std::size_t>(n)) {
+    *why = "VTK render process sent a truncated reply (" + describeStatus(status) + ")";
+    return false;
+  }
+  const std::string message = data.substr(header, static_cast<std::size_t>(n));
+  if (!ok) {
+    *why = message + stderrTail(errors);
+    return false;
+  }
+  const std::size_t pixels =
+      3 * static_cast<std::size_t>(s.view.width_px) * s.view.height_px;
+  if (data.size() != header + n + pixels) {
+    *why = "VTK render process sent " + std::to_string(data.size() - header - n) +
+           " pixel bytes instead of " + std::to_string(pixels);
+    return false;
+  }
+  cv::Mat(s.view.height_px,
+          s.view.width_px,
+          CV_8UC3,
+          const_cast<char*>(data.data() + header + n))
+      .copyTo(*bgr);
+  return true;
+}
+
+} // namespace
 
 /// Run renderSceneVtk() in a forked child, so that an abort(), exit() or crash inside
 /// VTK, Mesa or Xlib (they do all three on a broken display) only fails this call.
@@ -320,129 +490,27 @@ renderSceneVtkIsolated(const Scene& s,
     return false;
   }
   if (pid == 0) {
-    ::prctl(PR_SET_PDEATHSIG, SIGKILL);
     ::close(data_pipe[0]);
     ::close(err_pipe[0]);
-    ::dup2(err_pipe[1], 2); // VTK, Mesa and Xlib complain on stderr
-    std::int32_t ok = 0;
-    std::string message;
-    cv::Mat image;
-    try {
-      ok = renderSceneVtk(s, params, display, &image, &message) ? 1 : 0;
-    } catch (const std::exception& e) {
-      message = e.what();
-    } catch (...) {
-      message = "unknown exception";
-    }
-    message = message.substr(0, 4000);
-    const auto n = static_cast<std::int32_t>(message.size());
-    bool sent = writeAll(data_pipe[1], &ok, sizeof(ok)) &&
-                writeAll(data_pipe[1], &n, sizeof(n)) &&
-                writeAll(data_pipe[1], message.data(), message.size());
-    if (sent && ok)
-      sent = writeAll(data_pipe[1], image.data, image.total() * image.elemSize());
-    ::_exit(sent ? 0 : 1); // no atexit handlers, no flushing of the parent's buffers
+    renderInChild(s, params, display, data_pipe[1], err_pipe[1]);
   }
   ::close(data_pipe[1]);
   ::close(err_pipe[1]);
-
-  // Read both pipes until the data pipe closes or the deadline passes.
   std::string data, errors;
-  const auto start = Clock::now();
-  bool data_open = true, err_open = true, timed_out = false;
-  while (data_open) {
-    const double left_s = params.vtk_render_timeout_s - secondsSince(start);
-    if (left_s <= 0.0) {
-      timed_out = true;
-      break;
-    }
-    pollfd pfds[2] = {{data_pipe[0], POLLIN, 0},
-                      {err_open ? err_pipe[0] : -1, POLLIN, 0}};
-    const int r =
-        ::poll(pfds, 2, static_cast<int>(std::min(1000.0, std::ceil(left_s * 1000.0))));
-    if (r < 0 && errno != EINTR)
-      break;
-    char buf[1 << 16];
-    if (pfds[0].revents) {
-      const ssize_t n = ::read(data_pipe[0], buf, sizeof(buf));
-      if (n > 0)
-        data.append(buf, static_cast<std::size_t>(n));
-      else if (n == 0 || errno != EINTR)
-        data_open = false;
-    }
-    if (err_open && pfds[1].revents) {
-      const ssize_t n = ::read(err_pipe[0], buf, sizeof(buf));
-      if (n > 0) {
-        errors.append(buf, static_cast<std::size_t>(n));
-        if (errors.size() > 8192)
-          errors.erase(0, errors.size() - 8192);
-      } else if (n == 0 || errno != EINTR)
-        err_open = false;
-    }
-  }
+  const bool timed_out = readChildOutput(
+      data_pipe[0], err_pipe[0], params.vtk_render_timeout_s, data, errors);
   ::close(data_pipe[0]);
   ::close(err_pipe[0]);
   if (timed_out)
     ::kill(pid, SIGKILL);
   const int status = reapChild(pid, 5.0);
-
-  // A short excerpt of what the child printed, for the message.
-  auto stderr_tail = [&errors]() {
-    std::string t;
-    for (std::size_t i = 0; i < errors.size(); ++i) { // drop ANSI colour codes
-      if (errors[i] == '\x1b' && i + 1 < errors.size() && errors[i + 1] == '[') {
-        i += 2;
-        while (i < errors.size() && !std::isalpha(static_cast<unsigned char>(errors[i])))
-          ++i;
-      } else
-        t += errors[i];
-    }
-    while (!t.empty() && std::isspace(static_cast<unsigned char>(t.back())))
-      t.pop_back();
-    if (t.size() > 400)
-      t = "..." + t.substr(t.size() - 400);
-    for (char& c : t)
-      if (c == '\n')
-        c = ' ';
-    return t.empty() ? std::string() : " [stderr: " + t + "]";
-  };
   if (timed_out) {
     *why = "VTK render did not finish within " +
-           formatNumber(params.vtk_render_timeout_s, 0) + " s" + stderr_tail();
+           formatNumber(params.vtk_render_timeout_s, 0) + " s" + stderrTail(errors);
     return false;
   }
-  std::int32_t ok = 0, n = 0;
-  if (data.size() < 2 * sizeof(std::int32_t)) {
-    *why = "VTK render process died (" + describeStatus(status) + ")" + stderr_tail();
-    return false;
-  }
-  std::memcpy(&ok, data.data(), sizeof(ok));
-  std::memcpy(&n, data.data() + sizeof(ok), sizeof(n));
-  const std::size_t header = 2 * sizeof(std::int32_t);
-  if (n < 0 || data.size() < header + static_cast<std::size_t>(n)) {
-    *why = "VTK render process sent a truncated reply (" + describeStatus(status) + ")";
-    return false;
-  }
-  const std::string message = data.substr(header, static_cast<std::size_t>(n));
-  if (!ok) {
-    *why = message + stderr_tail();
-    return false;
-  }
-  const std::size_t pixels =
-      3 * static_cast<std::size_t>(s.view.width_px) * s.view.height_px;
-  if (data.size() != header + n + pixels) {
-    *why = "VTK render process sent " + std::to_string(data.size() - header - n) +
-           " pixel bytes instead of " + std::to_string(pixels);
-    return false;
-  }
-  cv::Mat(s.view.height_px,
-          s.view.width_px,
-          CV_8UC3,
-          const_cast<char*>(data.data() + header + n))
-      .copyTo(*bgr);
-  return true;
+  return decodeReply(data, errors, status, s, bgr, why);
 }
-
 
 } // namespace render_detail
 } // namespace rast
