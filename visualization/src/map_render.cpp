@@ -89,6 +89,39 @@ describeStatus(int status)
   return "status " + std::to_string(status);
 }
 
+namespace {
+
+/// Read from \a fd until a newline, end of file (\a eof) or \a timeout_s.
+std::string
+readLine(int fd, double timeout_s, bool& eof)
+{
+  std::string text;
+  const auto start = Clock::now();
+  eof = false;
+  while (text.find('\n') == std::string::npos && !eof) {
+    const double left_s = timeout_s - secondsSince(start);
+    if (left_s <= 0.0)
+      break;
+    pollfd pfd{fd, POLLIN, 0};
+    const int r = ::poll(&pfd, 1, static_cast<int>(std::ceil(left_s * 1000.0)));
+    if (r < 0 && errno == EINTR)
+      continue;
+    if (r <= 0)
+      break;
+    char buf[64];
+    const ssize_t n = ::read(fd, buf, sizeof(buf));
+    if (n < 0 && errno == EINTR)
+      continue;
+    if (n <= 0)
+      eof = true;
+    else
+      text.append(buf, static_cast<std::size_t>(n));
+  }
+  return text;
+}
+
+} // namespace
+
 /// A private Xvfb server, stopped (SIGTERM, then SIGKILL) and reaped on destruction.
 class PrivateXServer
 {
@@ -158,28 +191,8 @@ public:
     ::close(fds[1]);
 
     // The display number arrives as "N\n" once the server accepts clients.
-    std::string text;
-    const auto start = Clock::now();
     bool eof = false;
-    while (text.find('\n') == std::string::npos && !eof) {
-      const double left_s = timeout_s - secondsSince(start);
-      if (left_s <= 0.0)
-        break;
-      pollfd pfd{fds[0], POLLIN, 0};
-      const int r = ::poll(&pfd, 1, static_cast<int>(std::ceil(left_s * 1000.0)));
-      if (r < 0 && errno == EINTR)
-        continue;
-      if (r <= 0)
-        break;
-      char buf[64];
-      const ssize_t n = ::read(fds[0], buf, sizeof(buf));
-      if (n < 0 && errno == EINTR)
-        continue;
-      if (n <= 0)
-        eof = true;
-      else
-        text.append(buf, static_cast<std::size_t>(n));
-    }
+    const std::string text = readLine(fds[0], timeout_s, eof);
     ::close(fds[0]);
     if (text.find('\n') == std::string::npos) {
       if (eof) {

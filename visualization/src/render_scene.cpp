@@ -87,18 +87,19 @@ makeLayout(const MapRenderParams& params)
   return l;
 }
 
-Scene
-prepareScene(const MapRenderInput& input, const MapRenderParams& params)
-{
-  Scene s;
-  s.map_points_total = input.map_points_total > 0 ? input.map_points_total : input.map->size();
-  s.lut_bgr = makeLut(params.colour_map);
-  s.layout = makeLayout(params);
-  const bool by_height = params.colour_by == MapColourBy::kHeight;
-  s.value_label = by_height ? "height [m]" : "intensity";
+namespace {
 
-  // Finite map points, drawn from low to high so that, as in the VTK depth test,
-  // higher structure covers lower structure when seen from above.
+/// The finite map points, drawn from low to high so that, as in the VTK depth test,
+/// higher structure covers lower structure when seen from above, and their colours
+/// (range from robust percentiles). \a xs, \a ys: their coordinates, for the bounds.
+void
+colourPoints(const MapRenderInput& input,
+             const MapRenderParams& params,
+             Scene& s,
+             std::vector<double>& xs,
+             std::vector<double>& ys)
+{
+  const bool by_height = params.colour_by == MapColourBy::kHeight;
   std::vector<std::pair<float, std::size_t>> order;
   order.reserve(input.map->size());
   for (std::size_t i = 0; i < input.map->size(); ++i) {
@@ -108,7 +109,7 @@ prepareScene(const MapRenderInput& input, const MapRenderParams& params)
       order.emplace_back(p.z, i);
   }
   std::sort(order.begin(), order.end());
-  std::vector<double> values, xs, ys;
+  std::vector<double> values;
   values.reserve(order.size());
   xs.reserve(order.size());
   ys.reserve(order.size());
@@ -135,7 +136,12 @@ prepareScene(const MapRenderInput& input, const MapRenderParams& params)
         std::clamp((v - s.value_low) / (s.value_high - s.value_low), 0.0, 1.0);
     s.point_bgr.push_back(s.lut_bgr[static_cast<int>(std::lround(t * 255.0))]);
   }
+}
 
+/// The finite trajectory, ground truth and loop edges, and the path length.
+void
+copyLines(const MapRenderInput& input, Scene& s)
+{
   for (const auto& p : input.trajectory)
     if (isFinite(p))
       s.trajectory.push_back(p);
@@ -147,9 +153,14 @@ prepareScene(const MapRenderInput& input, const MapRenderParams& params)
       s.loop_edges.push_back(e);
   for (std::size_t i = 1; i < s.trajectory.size(); ++i)
     s.path_length_m += (s.trajectory[i] - s.trajectory[i - 1]).norm();
+}
 
-  // Bounds: the bulk of the map (0.5 %..99.5 %, so stray points far away do not
-  // shrink it) and everything else in full.
+/// The view: the bounds (the bulk of the map, 0.5 %..99.5 %, so that stray points far
+/// away do not shrink it, and everything else in full) fitted into the plot area
+/// between the title, legend and colour bar bands.
+void
+fitView(const MapRenderParams& params, std::vector<double>& xs, std::vector<double>& ys, Scene& s)
+{
   double x0 = std::numeric_limits<double>::infinity(), x1 = -x0, y0 = x0, y1 = -x0;
   double z0 = x0, z1 = -x0;
   auto grow = [&](const Eigen::Vector3d& p) {
@@ -180,7 +191,6 @@ prepareScene(const MapRenderInput& input, const MapRenderParams& params)
   s.z_min_m = z0;
   s.z_top_m = z1;
 
-  // Fit the bounds into the plot area (between the title, legend and colour bar bands).
   const Layout& l = s.layout;
   TopDownView& v = s.view;
   v.width_px = params.width_px;
@@ -194,6 +204,22 @@ prepareScene(const MapRenderInput& input, const MapRenderParams& params)
   const double plot_cx = plot_x + 0.5 * plot_w, plot_cy = plot_y + 0.5 * plot_h;
   v.cam_x_m = cx - (plot_cx - 0.5 * params.width_px) * v.m_per_px;
   v.cam_y_m = cy + (plot_cy - 0.5 * params.height_px) * v.m_per_px;
+}
+
+} // namespace
+
+Scene
+prepareScene(const MapRenderInput& input, const MapRenderParams& params)
+{
+  Scene s;
+  s.map_points_total = input.map_points_total > 0 ? input.map_points_total : input.map->size();
+  s.lut_bgr = makeLut(params.colour_map);
+  s.layout = makeLayout(params);
+  s.value_label = params.colour_by == MapColourBy::kHeight ? "height [m]" : "intensity";
+  std::vector<double> xs, ys;
+  colourPoints(input, params, s, xs, ys);
+  copyLines(input, s);
+  fitView(params, xs, ys, s);
   return s;
 }
 
