@@ -262,7 +262,21 @@ struct SimulatedWorld::Impl
   void buildDistanceField();
   void buildGround();
   void raiseEmbankments();
+  /// The static objects, layer by layer (world_objects.cpp).
   void placeObjects();
+  void placeBuildings();
+  void placeRoadsideTreesAndPoles();
+  void placeParkTrees();
+  void placeParkedCars();
+  void placeWallsAndHedges();
+  template <class Body>
+  void forLots(int layer, double lot, double d_lo, double d_hi, Body&& body);
+  /// Whether the 64 m block at (x, y) is open (parks, fields between buildings).
+  bool isOpenBlock(double x, double y) const;
+  /// Add \a p when it keeps \a margin from the corridor.
+  bool keep(const Primitive& p, double margin);
+  /// Mean free path of tree crowns (0: solid).
+  float crownFreePath() const;
   /// The layers of the scenes other than suburbs, with placeObjects' lot iterator and
   /// corridor-checked insertion.
   template <class ForLots, class Keep>

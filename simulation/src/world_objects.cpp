@@ -7,49 +7,63 @@
 namespace pcl {
 namespace rast {
 
+/// Each object lot draws from its own stream hashed from (seed, layer, lot index), so
+/// the world is a function of the seed and the path only: body(rng, x, y, d) for every
+/// lot of side \a lot whose centre lies between \a d_lo and \a d_hi from the path.
+template <class Body>
 void
-SimulatedWorld::Impl::placeObjects()
+SimulatedWorld::Impl::forLots(int layer, double lot, double d_lo, double d_hi, Body&& body)
+{
+  const Grid2& g = dist_grid;
+  const long i0 = static_cast<long>(std::floor(g.x0 / lot));
+  const long j0 = static_cast<long>(std::floor(g.y0 / lot));
+  const long i1 = static_cast<long>(std::ceil((g.x0 + g.nx * g.cell) / lot));
+  const long j1 = static_cast<long>(std::ceil((g.y0 + g.ny * g.cell) / lot));
+  for (long j = j0; j < j1; ++j)
+    for (long i = i0; i < i1; ++i) {
+      const double x = (i + 0.5) * lot, y = (j + 0.5) * lot;
+      const double d = distanceAt(x, y);
+      if (d < d_lo || d > d_hi)
+        continue;
+      Rng rng(hashOf(seed, layer, i, j));
+      body(rng, x, y, d);
+    }
+}
+
+bool
+SimulatedWorld::Impl::isOpenBlock(double x, double y) const
+{
+  Rng rng(hashOf(seed,
+                 100,
+                 static_cast<long>(std::floor(x / 64.0)),
+                 static_cast<long>(std::floor(y / 64.0))));
+  return rng.uniform() < params.open_fraction;
+}
+
+bool
+SimulatedWorld::Impl::keep(const Primitive& p, double margin)
+{
+  if (!clearOfCorridor(p, margin))
+    return false;
+  prims.push_back(p);
+  return true;
+}
+
+float
+SimulatedWorld::Impl::crownFreePath() const
+{
+  return params.porous_vegetation ? static_cast<float>(params.vegetation_mean_free_path_m)
+                                  : 0.0f;
+}
+
+/// Buildings on 16 m lots, set back from the corridor, some with an annex (L shape)
+/// or a rooftop structure.
+/// Urban canyons: only behind their facades (placeSceneObjects), denser.
+void
+SimulatedWorld::Impl::placeBuildings()
 {
   const double corridor = params.corridor_half_width_m;
   const double max_d = params.max_object_distance_m;
-  // Each object lot draws from its own stream hashed from (seed, layer, lot index), so
-  // the world is a function of the seed and the path only.
-  auto forLots = [&](int layer, double lot, double d_lo, double d_hi, auto&& body) {
-    const Grid2& g = dist_grid;
-    const long i0 = static_cast<long>(std::floor(g.x0 / lot));
-    const long j0 = static_cast<long>(std::floor(g.y0 / lot));
-    const long i1 = static_cast<long>(std::ceil((g.x0 + g.nx * g.cell) / lot));
-    const long j1 = static_cast<long>(std::ceil((g.y0 + g.ny * g.cell) / lot));
-    for (long j = j0; j < j1; ++j)
-      for (long i = i0; i < i1; ++i) {
-        const double x = (i + 0.5) * lot, y = (j + 0.5) * lot;
-        const double d = distanceAt(x, y);
-        if (d < d_lo || d > d_hi)
-          continue;
-        Rng rng(hashOf(seed, layer, i, j));
-        body(rng, x, y, d);
-      }
-  };
-  auto isOpenBlock = [&](double x, double y) {
-    Rng rng(hashOf(seed,
-                   100,
-                   static_cast<long>(std::floor(x / 64.0)),
-                   static_cast<long>(std::floor(y / 64.0))));
-    return rng.uniform() < params.open_fraction;
-  };
-  auto keep = [&](const Primitive& p, double margin) {
-    if (!clearOfCorridor(p, margin))
-      return false;
-    prims.push_back(p);
-    return true;
-  };
-  const float crown_free_path =
-      params.porous_vegetation ? static_cast<float>(params.vegetation_mean_free_path_m)
-                               : 0.0f;
-
-  // Buildings on 16 m lots, set back from the corridor, some with an annex (L shape)
-  // or a rooftop structure.
-  // Urban canyons: only behind their facades (placeSceneObjects), denser.
   forLots(1, 16.0, corridor + 6.0, max_d, [&](Rng& rng, double x, double y, double d) {
     const SceneType scene = sceneAt(x, y);
     const bool urban = scene == SceneType::kUrbanCanyon;
@@ -99,9 +113,15 @@ SimulatedWorld::Impl::placeObjects()
       break;
     }
   });
+}
 
-  // Roadside trees and poles (with a sign board) on 4 m lots; urban canyons have
-  // hardly any trees.
+/// Roadside trees and poles (with a sign board) on 4 m lots; urban canyons have
+/// hardly any trees.
+void
+SimulatedWorld::Impl::placeRoadsideTreesAndPoles()
+{
+  const double corridor = params.corridor_half_width_m;
+  const float crown_free_path = crownFreePath();
   forLots(
       2, 4.0, corridor + 0.5, corridor + 8.0, [&](Rng& rng, double x, double y, double) {
         const SceneType scene = sceneAt(x, y);
@@ -165,9 +185,16 @@ SimulatedWorld::Impl::placeObjects()
           }
         }
       });
+}
 
-  // Trees in parks and gaps further out, denser in open blocks.
-  // Highways: sparse, and only beyond ~30 m of the road.
+/// Trees in parks and gaps further out, denser in open blocks.
+/// Highways: sparse, and only beyond ~30 m of the road.
+void
+SimulatedWorld::Impl::placeParkTrees()
+{
+  const double corridor = params.corridor_half_width_m;
+  const double max_d = params.max_object_distance_m;
+  const float crown_free_path = crownFreePath();
   forLots(3, 9.0, corridor + 8.0, max_d, [&](Rng& rng, double x, double y, double d) {
     const SceneType scene = sceneAt(x, y);
     const bool highway = scene == SceneType::kHighway;
@@ -202,8 +229,13 @@ SimulatedWorld::Impl::placeObjects()
     trunk.reflectivity = 0.35f;
     prims.push_back(trunk);
   });
+}
 
-  // Parked cars at the kerb, aligned with the road, never overlapping each other.
+/// Parked cars at the kerb, aligned with the road, never overlapping each other.
+void
+SimulatedWorld::Impl::placeParkedCars()
+{
+  const double corridor = params.corridor_half_width_m;
   std::vector<std::pair<double, double>> car_xy;
   forLots(4, 5.0, corridor, corridor + 6.0, [&](Rng& rng, double x, double y, double) {
     const SceneType scene = sceneAt(x, y);
@@ -231,9 +263,15 @@ SimulatedWorld::Impl::placeObjects()
     car_xy.emplace_back(cx, cy);
     prims.insert(prims.end(), car.begin(), car.end());
   });
+}
 
-  // Walls and fences parallel to the road behind the kerb (suburbs); with porous
-  // vegetation, hedges on some of the lots without a wall.
+/// Walls and fences parallel to the road behind the kerb (suburbs); with porous
+/// vegetation, hedges on some of the lots without a wall.
+void
+SimulatedWorld::Impl::placeWallsAndHedges()
+{
+  const double corridor = params.corridor_half_width_m;
+  const float crown_free_path = crownFreePath();
   forLots(
       5, 8.0, corridor + 4.5, corridor + 10.0, [&](Rng& rng, double x, double y, double) {
         if (sceneAt(x, y) != SceneType::kSuburb)
@@ -267,9 +305,22 @@ SimulatedWorld::Impl::placeObjects()
                      static_cast<float>(wall ? rng.uniform(0.3, 0.5) : 0.6)),
              0.0);
       });
+}
 
+void
+SimulatedWorld::Impl::placeObjects()
+{
+  placeBuildings();
+  placeRoadsideTreesAndPoles();
+  placeParkTrees();
+  placeParkedCars();
+  placeWallsAndHedges();
   if (!plain)
-    placeSceneObjects(forLots, keep);
+    placeSceneObjects(
+        [this](int layer, double lot, double d_lo, double d_hi, auto&& body) {
+          forLots(layer, lot, d_lo, d_hi, body);
+        },
+        [this](const Primitive& p, double margin) { return keep(p, margin); });
 }
 
 template <class ForLots, class Keep>
