@@ -277,10 +277,23 @@ struct SimulatedWorld::Impl
   bool keep(const Primitive& p, double margin);
   /// Mean free path of tree crowns (0: solid).
   float crownFreePath() const;
-  /// The layers of the scenes other than suburbs, with placeObjects' lot iterator and
-  /// corridor-checked insertion.
-  template <class ForLots, class Keep>
-  void placeSceneObjects(const ForLots& forLots, const Keep& keep);
+  /// The layers of the scenes other than suburbs.
+  void placeSceneObjects();
+  void placeUrbanCanyons();
+  void placeGuardRails();
+  void placeTunnels();
+  void placeFieldObjects();
+  template <class Body>
+  void forSegments(int layer, SceneType type, double seg_len, Body&& body);
+  Primitive besideRoad(const PathSample& ps,
+                       double side,
+                       double offset,
+                       double depth,
+                       double length,
+                       double z_lo,
+                       double z_hi,
+                       float reflectivity,
+                       double along = 0.0) const;
   void buildRayGrid();
   void placeMovingCars(const PoseVector& poses, const std::vector<double>& timestamps_s);
   void clearCrossRoads();

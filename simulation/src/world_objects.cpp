@@ -12,7 +12,8 @@ namespace rast {
 /// lot of side \a lot whose centre lies between \a d_lo and \a d_hi from the path.
 template <class Body>
 void
-SimulatedWorld::Impl::forLots(int layer, double lot, double d_lo, double d_hi, Body&& body)
+SimulatedWorld::Impl::forLots(
+    int layer, double lot, double d_lo, double d_hi, Body&& body)
 {
   const Grid2& g = dist_grid;
   const long i0 = static_cast<long>(std::floor(g.x0 / lot));
@@ -316,57 +317,58 @@ SimulatedWorld::Impl::placeObjects()
   placeParkedCars();
   placeWallsAndHedges();
   if (!plain)
-    placeSceneObjects(
-        [this](int layer, double lot, double d_lo, double d_hi, auto&& body) {
-          forLots(layer, lot, d_lo, d_hi, body);
-        },
-        [this](const Primitive& p, double margin) { return keep(p, margin); });
+    placeSceneObjects();
 }
 
-template <class ForLots, class Keep>
+/// Structures along the road: body(rng, sample, k) for the middle sample of every
+/// seg_len of arc length in stretches of scene \a type, each segment with its own
+/// stream. A segment driven a second time (its cell is nearest to a sample >= 30 m
+/// earlier on the path) has its structures already.
+template <class Body>
 void
-SimulatedWorld::Impl::placeSceneObjects(const ForLots& forLots, const Keep& keep)
+SimulatedWorld::Impl::forSegments(int layer, SceneType type, double seg_len, Body&& body)
+{
+  const double length = path.back().s;
+  std::size_t k = 0;
+  for (long seg = 0; seg * seg_len <= length; ++seg) {
+    const double s_mid = std::min(length, (seg + 0.5) * seg_len);
+    while (k + 1 < path.size() && path[k].s < s_mid)
+      ++k;
+    const PathSample& ps = path[k];
+    const std::size_t cell = dist_grid.index(dist_grid.ix(ps.x), dist_grid.iy(ps.y));
+    if (sceneOfSample(k) != type || path[nearest[cell]].s < ps.s - 30.0)
+      continue;
+    Rng rng(hashOf(seed, layer, seg));
+    body(rng, ps, k);
+  }
+}
+
+/// A box along the road whose inner face is `offset` beside the path sample on `side`
+/// (+1 left, -1 right), `along` ahead of it, heights relative to the smooth ground
+/// (long structures do not follow the few cm of rough relief).
+Primitive
+SimulatedWorld::Impl::besideRoad(const PathSample& ps,
+                                 double side,
+                                 double offset,
+                                 double depth,
+                                 double length,
+                                 double z_lo,
+                                 double z_hi,
+                                 float reflectivity,
+                                 double along) const
+{
+  const double c = std::cos(ps.heading), s = std::sin(ps.heading);
+  const double lateral = side * (offset + 0.5 * depth);
+  const double x = ps.x - lateral * s + along * c, y = ps.y + lateral * c + along * s;
+  const double g = smoothGroundAt(x, y);
+  return makeBox(x, y, g + z_lo, g + z_hi, length, depth, ps.heading, reflectivity);
+}
+
+/// Urban canyon: 12 m facade segments 5-7 m outside the corridor, 10 % gaps.
+void
+SimulatedWorld::Impl::placeUrbanCanyons()
 {
   const double corridor = params.corridor_half_width_m;
-  // Structures along the road: body(rng, sample) for the middle sample of every
-  // seg_len of arc length in stretches of scene `type`, each segment with its own
-  // stream. A segment driven a second time (its cell is nearest to a sample >= 30 m
-  // earlier on the path) has its structures already.
-  auto forSegments = [&](int layer, SceneType type, double seg_len, auto&& body) {
-    const double length = path.back().s;
-    std::size_t k = 0;
-    for (long seg = 0; seg * seg_len <= length; ++seg) {
-      const double s_mid = std::min(length, (seg + 0.5) * seg_len);
-      while (k + 1 < path.size() && path[k].s < s_mid)
-        ++k;
-      const PathSample& ps = path[k];
-      const std::size_t cell = dist_grid.index(dist_grid.ix(ps.x), dist_grid.iy(ps.y));
-      if (sceneOfSample(k) != type || path[nearest[cell]].s < ps.s - 30.0)
-        continue;
-      Rng rng(hashOf(seed, layer, seg));
-      body(rng, ps, k);
-    }
-  };
-  // A box along the road whose inner face is `offset` beside the path sample on
-  // `side` (+1 left, -1 right), `along` ahead of it, heights relative to the smooth
-  // ground (long structures do not follow the few cm of rough relief).
-  auto besideRoad = [&](const PathSample& ps,
-                        double side,
-                        double offset,
-                        double depth,
-                        double length,
-                        double z_lo,
-                        double z_hi,
-                        float reflectivity,
-                        double along = 0.0) {
-    const double c = std::cos(ps.heading), s = std::sin(ps.heading);
-    const double lateral = side * (offset + 0.5 * depth);
-    const double x = ps.x - lateral * s + along * c, y = ps.y + lateral * c + along * s;
-    const double g = smoothGroundAt(x, y);
-    return makeBox(x, y, g + z_lo, g + z_hi, length, depth, ps.heading, reflectivity);
-  };
-
-  // Urban canyon: 12 m facade segments 5-7 m outside the corridor, 10 % gaps.
   forSegments(20,
               SceneType::kUrbanCanyon,
               12.0,
@@ -382,9 +384,13 @@ SimulatedWorld::Impl::placeSceneObjects(const ForLots& forLots, const Keep& keep
                        0.0);
                 }
               });
+}
 
-  // Highway: guard rails (0.3 m at 0.5-0.8 m) 0.5 m beyond the road's edge on both
-  // sides, on posts every 2.67 m. Embankments are in the ground (raiseEmbankments).
+/// Highway: guard rails (0.3 m at 0.5-0.8 m) 0.5 m beyond the road's edge on both
+/// sides, on posts every 2.67 m. Embankments are in the ground (raiseEmbankments).
+void
+SimulatedWorld::Impl::placeGuardRails()
+{
   const double rail = params.highway_half_width_m + 0.5;
   forSegments(21, SceneType::kHighway, 8.0, [&](Rng&, const PathSample& ps, std::size_t) {
     for (const double side : {-1.0, 1.0}) {
@@ -394,13 +400,18 @@ SimulatedWorld::Impl::placeSceneObjects(const ForLots& forLots, const Keep& keep
              0.0);
     }
   });
+}
 
-  // Tunnel: per stretch two smooth walls 0.8-2 m outside the corridor, 5-7 m tall, and
-  // a ceiling over part of it (70 % of the stretches). Like a real tunnel, the walls
-  // carry small fixtures at irregular spacing: lamps high up (about one per 12 m and
-  // side), cabinets and emergency-niche doors at the bottom (one per ~50 m). Only
-  // they fix a position along the road.
-  // 10 m segments: fewer boxes per ray-grid cell (every ray in a tunnel is near them).
+/// Tunnel: per stretch two smooth walls 0.8-2 m outside the corridor, 5-7 m tall, and
+/// a ceiling over part of it (70 % of the stretches). Like a real tunnel, the walls
+/// carry small fixtures at irregular spacing: lamps high up (about one per 12 m and
+/// side), cabinets and emergency-niche doors at the bottom (one per ~50 m). Only
+/// they fix a position along the road.
+/// 10 m segments: fewer boxes per ray-grid cell (every ray in a tunnel is near them).
+void
+SimulatedWorld::Impl::placeTunnels()
+{
+  const double corridor = params.corridor_half_width_m;
   const double tunnel_seg = 10.0;
   forSegments(
       24,
@@ -458,8 +469,13 @@ SimulatedWorld::Impl::placeSceneObjects(const ForLots& forLots, const Keep& keep
                                   0.3f));
         }
       });
+}
 
-  // Open field / parking lot: a few lamp posts (with an arm) ...
+/// Open field / parking lot: a few lamp posts (with an arm) ...
+void
+SimulatedWorld::Impl::placeFieldObjects()
+{
+  const double corridor = params.corridor_half_width_m;
   forLots(23, 20.0, corridor + 2.0, 60.0, [&](Rng& rng, double x, double y, double) {
     if (sceneAt(x, y) != SceneType::kOpenField || rng.uniform() >= 0.3)
       return;
@@ -508,6 +524,15 @@ SimulatedWorld::Impl::placeSceneObjects(const ForLots& forLots, const Keep& keep
         prims.insert(prims.end(), car.begin(), car.end());
     }
   });
+}
+
+void
+SimulatedWorld::Impl::placeSceneObjects()
+{
+  placeUrbanCanyons();
+  placeGuardRails();
+  placeTunnels();
+  placeFieldObjects();
 }
 
 } // namespace rast
