@@ -381,6 +381,32 @@ struct SimulatedWorld::Impl
   /// Each run of consecutive rays with the same origin shares the ground below it and
   /// the moving cars near it. A template so that one origin per frame costs what it
   /// did before rays had their own.
+  /// What the rays of one origin share: the smooth ground below it, whether rays that
+  /// miss the Newton steps are marched, the moving cars in range.
+  struct RayOrigin
+  {
+    double h0 = 0.0, gx0 = 0.0, gy0 = 0.0;
+    bool march = false;
+    const std::vector<Primitive>* near_movers = nullptr;
+  };
+  /// The nearest hit of a ray so far (range t, incidence, reflectivity).
+  struct NearestHit
+  {
+    double t = 0.0, cos_inc = 1.0;
+    float reflectivity = 0.0f;
+    bool found = false, ground = false;
+  };
+  RayHit castRay(const Eigen::Vector3d& o,
+                 const Eigen::Vector3d& d,
+                 double max_range_m,
+                 const RayOrigin& origin,
+                 std::uint32_t ray_id,
+                 std::vector<std::uint32_t>& mailbox) const;
+  void traverseRayGrid(const Eigen::Vector3d& o,
+                       const Eigen::Vector3d& d,
+                       std::uint32_t ray_id,
+                       std::vector<std::uint32_t>& mailbox,
+                       NearestHit& hit) const;
   template <bool kOwnOrigins>
   void castRays(const Eigen::Vector3d* origins,
                 const std::vector<Eigen::Vector3d>& dirs,

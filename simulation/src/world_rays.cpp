@@ -271,6 +271,145 @@ SimulatedWorld::Impl::porousStop(std::uint32_t id,
   return true;
 }
 
+/// Step 3 of a ray: the primitives of the ray grid, by a 2D DDA (Amanatides & Woo) over
+/// the cells the ray's footprint crosses, up to the nearest hit so far.
+void
+SimulatedWorld::Impl::traverseRayGrid(const Eigen::Vector3d& o,
+                                      const Eigen::Vector3d& d,
+                                      std::uint32_t ray_id,
+                                      std::vector<std::uint32_t>& mailbox,
+                                      NearestHit& hit) const
+{
+  const Grid2& g = ray_grid;
+  const double gx_min = g.x0, gy_min = g.y0;
+  const double gx_max = g.x0 + g.nx * g.cell, gy_max = g.y0 + g.ny * g.cell;
+  double t_enter = 0.0, t_exit = hit.t;
+  const double dx = d.x(), dy = d.y();
+  auto clip = [&](double o_k, double d_k, double lo, double hi) {
+    if (std::abs(d_k) < 1e-12)
+      return o_k >= lo && o_k < hi;
+    double ta = (lo - o_k) / d_k, tb = (hi - o_k) / d_k;
+    if (ta > tb)
+      std::swap(ta, tb);
+    t_enter = std::max(t_enter, ta);
+    t_exit = std::min(t_exit, tb);
+    return true;
+  };
+  if (!prims.empty() && clip(o.x(), dx, gx_min, gx_max) &&
+      clip(o.y(), dy, gy_min, gy_max) && t_enter < t_exit) {
+    const double px = o.x() + t_enter * dx, py = o.y() + t_enter * dy;
+    int i = g.ix(px), j = g.iy(py);
+    const int step_i = dx > 0 ? 1 : -1, step_j = dy > 0 ? 1 : -1;
+    const double inv_dx = std::abs(dx) > 1e-12 ? 1.0 / dx : kInf;
+    const double inv_dy = std::abs(dy) > 1e-12 ? 1.0 / dy : kInf;
+    double t_max_x = std::abs(dx) > 1e-12
+                         ? (g.x0 + (i + (dx > 0 ? 1 : 0)) * g.cell - o.x()) * inv_dx
+                         : kInf;
+    double t_max_y = std::abs(dy) > 1e-12
+                         ? (g.y0 + (j + (dy > 0 ? 1 : 0)) * g.cell - o.y()) * inv_dy
+                         : kInf;
+    const double t_delta_x = std::abs(g.cell * inv_dx),
+                 t_delta_y = std::abs(g.cell * inv_dy);
+    double t_cell = t_enter;
+    while (t_cell < hit.t) {
+      const double t_next = std::min(t_max_x, t_max_y);
+      const std::size_t c = g.index(i, j);
+      const double z_low =
+          o.z() + std::min(t_cell * d.z(), std::min(t_next, hit.t) * d.z());
+      if (z_low <= cell_top[c]) {
+        for (std::uint32_t k = cell_start[c]; k < cell_start[c + 1]; ++k) {
+          const std::uint32_t id = cell_items[k];
+          if (mailbox[id] == ray_id)
+            continue;
+          mailbox[id] = ray_id;
+          const Primitive& prim = prims[id];
+          double t, cos_inc, t_out;
+          const bool porous = prim.mean_free_path > 0.0f;
+          if (intersect(prim, o, d, 1e-6, hit.t, t, cos_inc, porous ? &t_out : nullptr) &&
+              (!porous || porousStop(id, o, d, t, t_out, hit.t, t, cos_inc))) {
+            hit.t = t;
+            hit.cos_inc = cos_inc;
+            hit.reflectivity = prim.reflectivity;
+            hit.found = true;
+            hit.ground = false;
+          }
+        }
+      } else if (d.z() > 0 && z_low > max_top) {
+        break; // above everything, climbing
+      }
+      if (t_next >= hit.t)
+        break;
+      t_cell = t_next;
+      if (t_max_x < t_max_y) {
+        i += step_i;
+        t_max_x += t_delta_x;
+        if (i < 0 || i >= g.nx)
+          break;
+      } else {
+        j += step_j;
+        t_max_y += t_delta_y;
+        if (j < 0 || j >= g.ny)
+          break;
+      }
+    }
+  }
+}
+
+/// One ray: the ground (steps 1), the moving cars near its origin (2) and the static
+/// primitives (3); the nearest wins.
+RayHit
+SimulatedWorld::Impl::castRay(const Eigen::Vector3d& o,
+                              const Eigen::Vector3d& d,
+                              double max_range_m,
+                              const RayOrigin& origin,
+                              std::uint32_t ray_id,
+                              std::vector<std::uint32_t>& mailbox) const
+{
+  NearestHit hit;
+  hit.t = max_range_m;
+  double t_ground, cos_ground;
+  if (groundHit(o,
+                d,
+                max_range_m,
+                origin.h0,
+                origin.gx0,
+                origin.gy0,
+                origin.march,
+                t_ground,
+                cos_ground)) {
+    hit.t = t_ground;
+    hit.cos_inc = cos_ground;
+    const Eigen::Vector3d p = o + t_ground * d;
+    hit.reflectivity =
+        distanceAt(p.x(), p.y()) < roadHalfWidthAt(p.x(), p.y()) ? 0.12f : 0.28f;
+    hit.found = hit.ground = true;
+  }
+  for (const auto& b : *origin.near_movers) {
+    const double ox = b.cx - o.x(), oy = b.cy - o.y(), oz = b.cz - o.z();
+    const double tca = ox * d.x() + oy * d.y() + oz * d.z();
+    const double rad2 = b.hx * b.hx + b.hy * b.hy + b.hz * b.hz;
+    if (ox * ox + oy * oy + oz * oz - tca * tca > rad2)
+      continue;
+    double t, c;
+    if (intersect(b, o, d, 1e-6, hit.t, t, c)) {
+      hit.t = t;
+      hit.cos_inc = c;
+      hit.reflectivity = b.reflectivity;
+      hit.found = true;
+      hit.ground = false;
+    }
+  }
+  traverseRayGrid(o, d, ray_id, mailbox, hit);
+  RayHit out;
+  if (hit.found) {
+    out.range_m = hit.t;
+    out.cos_incidence = hit.cos_inc;
+    out.reflectivity = hit.reflectivity;
+    out.is_ground = hit.ground;
+  }
+  return out;
+}
+
 template <bool kOwnOrigins>
 void
 SimulatedWorld::Impl::castRays(const Eigen::Vector3d* origins,
@@ -279,148 +418,29 @@ SimulatedWorld::Impl::castRays(const Eigen::Vector3d* origins,
                                double time_s,
                                std::vector<RayHit>& hits) const
 {
-  const Impl& w = *this;
-  const Grid2& g = w.ray_grid;
   hits.assign(dirs.size(), RayHit());
-  std::vector<std::uint32_t> mailbox(w.prims.size(),
+  std::vector<std::uint32_t> mailbox(prims.size(),
                                      std::numeric_limits<std::uint32_t>::max());
-
-  const std::vector<Primitive> movers = w.movingCarBoxes(time_s);
+  const std::vector<Primitive> movers = movingCarBoxes(time_s);
   std::vector<Primitive> near_movers;
-
-  const double gx_min = g.x0, gy_min = g.y0;
-  const double gx_max = g.x0 + g.nx * g.cell, gy_max = g.y0 + g.ny * g.cell;
-
   // Runs of rays with the same origin share its set-up.
   for (std::size_t r0 = 0; r0 < dirs.size();) {
     const Eigen::Vector3d o = origins[kOwnOrigins ? r0 : 0];
     std::size_t r1 = kOwnOrigins ? r0 + 1 : dirs.size();
     while (kOwnOrigins && r1 < dirs.size() && origins[r1] == o)
       ++r1;
-
     // Moving cars: only those that can be in range, tested via an enclosing sphere.
     near_movers.clear();
     for (const auto& b : movers)
       if (std::hypot(b.cx - o.x(), b.cy - o.y()) < max_range_m + 5.0)
         near_movers.push_back(b);
-    double gx0, gy0;
-    const double h0 = w.smoothGroundAt(o.x(), o.y(), &gx0, &gy0);
-    const bool march = w.has_highway && w.sceneAt(o.x(), o.y()) == SceneType::kHighway;
-
-    for (std::size_t r = r0; r < r1; ++r) {
-      const Eigen::Vector3d& d = dirs[r];
-      RayHit& out = hits[r];
-      double best = max_range_m, best_cos = 1.0;
-      float best_refl = 0.0f;
-      bool found = false, is_ground = false;
-
-      double t_ground, cos_ground;
-      if (w.groundHit(o, d, max_range_m, h0, gx0, gy0, march, t_ground, cos_ground)) {
-        best = t_ground;
-        best_cos = cos_ground;
-        const Eigen::Vector3d p = o + t_ground * d;
-        best_refl =
-            w.distanceAt(p.x(), p.y()) < w.roadHalfWidthAt(p.x(), p.y()) ? 0.12f : 0.28f;
-        found = is_ground = true;
-      }
-
-      for (const auto& b : near_movers) {
-        const double ox = b.cx - o.x(), oy = b.cy - o.y(), oz = b.cz - o.z();
-        const double tca = ox * d.x() + oy * d.y() + oz * d.z();
-        const double rad2 = b.hx * b.hx + b.hy * b.hy + b.hz * b.hz;
-        if (ox * ox + oy * oy + oz * oz - tca * tca > rad2)
-          continue;
-        double t, c;
-        if (intersect(b, o, d, 1e-6, best, t, c)) {
-          best = t;
-          best_cos = c;
-          best_refl = b.reflectivity;
-          found = true;
-          is_ground = false;
-        }
-      }
-
-      // 2D DDA (Amanatides & Woo) over the cells the ray's footprint crosses, up to
-      // the nearest hit so far.
-      double t_enter = 0.0, t_exit = best;
-      const double dx = d.x(), dy = d.y();
-      auto clip = [&](double o_k, double d_k, double lo, double hi) {
-        if (std::abs(d_k) < 1e-12)
-          return o_k >= lo && o_k < hi;
-        double ta = (lo - o_k) / d_k, tb = (hi - o_k) / d_k;
-        if (ta > tb)
-          std::swap(ta, tb);
-        t_enter = std::max(t_enter, ta);
-        t_exit = std::min(t_exit, tb);
-        return true;
-      };
-      if (!w.prims.empty() && clip(o.x(), dx, gx_min, gx_max) &&
-          clip(o.y(), dy, gy_min, gy_max) && t_enter < t_exit) {
-        const double px = o.x() + t_enter * dx, py = o.y() + t_enter * dy;
-        int i = g.ix(px), j = g.iy(py);
-        const int step_i = dx > 0 ? 1 : -1, step_j = dy > 0 ? 1 : -1;
-        const double inv_dx = std::abs(dx) > 1e-12 ? 1.0 / dx : kInf;
-        const double inv_dy = std::abs(dy) > 1e-12 ? 1.0 / dy : kInf;
-        double t_max_x = std::abs(dx) > 1e-12
-                             ? (g.x0 + (i + (dx > 0 ? 1 : 0)) * g.cell - o.x()) * inv_dx
-                             : kInf;
-        double t_max_y = std::abs(dy) > 1e-12
-                             ? (g.y0 + (j + (dy > 0 ? 1 : 0)) * g.cell - o.y()) * inv_dy
-                             : kInf;
-        const double t_delta_x = std::abs(g.cell * inv_dx),
-                     t_delta_y = std::abs(g.cell * inv_dy);
-        double t_cell = t_enter;
-        const std::uint32_t ray_id = static_cast<std::uint32_t>(r);
-        while (t_cell < best) {
-          const double t_next = std::min(t_max_x, t_max_y);
-          const std::size_t c = g.index(i, j);
-          const double z_low =
-              o.z() + std::min(t_cell * d.z(), std::min(t_next, best) * d.z());
-          if (z_low <= w.cell_top[c]) {
-            for (std::uint32_t k = w.cell_start[c]; k < w.cell_start[c + 1]; ++k) {
-              const std::uint32_t id = w.cell_items[k];
-              if (mailbox[id] == ray_id)
-                continue;
-              mailbox[id] = ray_id;
-              const Primitive& prim = w.prims[id];
-              double t, cos_inc, t_out;
-              const bool porous = prim.mean_free_path > 0.0f;
-              if (intersect(
-                      prim, o, d, 1e-6, best, t, cos_inc, porous ? &t_out : nullptr) &&
-                  (!porous || w.porousStop(id, o, d, t, t_out, best, t, cos_inc))) {
-                best = t;
-                best_cos = cos_inc;
-                best_refl = prim.reflectivity;
-                found = true;
-                is_ground = false;
-              }
-            }
-          } else if (d.z() > 0 && z_low > w.max_top) {
-            break; // above everything, climbing
-          }
-          if (t_next >= best)
-            break;
-          t_cell = t_next;
-          if (t_max_x < t_max_y) {
-            i += step_i;
-            t_max_x += t_delta_x;
-            if (i < 0 || i >= g.nx)
-              break;
-          } else {
-            j += step_j;
-            t_max_y += t_delta_y;
-            if (j < 0 || j >= g.ny)
-              break;
-          }
-        }
-      }
-      if (found) {
-        out.range_m = best;
-        out.cos_incidence = best_cos;
-        out.reflectivity = best_refl;
-        out.is_ground = is_ground;
-      }
-    }
+    RayOrigin origin;
+    origin.h0 = smoothGroundAt(o.x(), o.y(), &origin.gx0, &origin.gy0);
+    origin.march = has_highway && sceneAt(o.x(), o.y()) == SceneType::kHighway;
+    origin.near_movers = &near_movers;
+    for (std::size_t r = r0; r < r1; ++r)
+      hits[r] = castRay(
+          o, dirs[r], max_range_m, origin, static_cast<std::uint32_t>(r), mailbox);
     r0 = r1;
   }
 }
