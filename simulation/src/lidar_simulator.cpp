@@ -464,12 +464,7 @@ LidarSimulator::simulateFrame(std::size_t i,
   if (i >= numFrames())
     throw std::out_of_range("LidarSimulator::simulateFrame: frame " + std::to_string(i) +
                             " of " + std::to_string(numFrames()));
-  const Pose3d T_world_sensor = sensorPose(i);
   const double time_s = timestamp(i);
-  const Eigen::Matrix3d R = T_world_sensor.linear();
-  const Eigen::Vector3d origin = T_world_sensor.translation();
-  const std::size_t n = ray_dirs_sensor_.size();
-  const std::size_t beams = spec_.beam_elevations_rad.size();
   const int steps = spec_.azimuth_steps;
   const bool raw = params_.raw_sweep;
 
@@ -488,8 +483,21 @@ LidarSimulator::simulateFrame(std::size_t i,
     for (int a = 0; a < steps; ++a)
       T_world_column.push_back(sensorPoseAt(time_s + column_tau_s[a]));
   }
+  const std::vector<RayHit> hits = castFrame(i, T_world_column);
+  sensorEffects(i, hits, column_tau_s, cloud, point_times_s);
+}
 
-  // 1. Cast rays [lo, hi) into hits (from the frame's pose, or from each column's
+std::vector<RayHit>
+LidarSimulator::castFrame(std::size_t i, const PoseVector& T_world_column) const
+{
+  const Pose3d T_world_sensor = sensorPose(i);
+  const double time_s = timestamp(i);
+  const Eigen::Matrix3d R = T_world_sensor.linear();
+  const Eigen::Vector3d origin = T_world_sensor.translation();
+  const std::size_t n = ray_dirs_sensor_.size();
+  const std::size_t beams = spec_.beam_elevations_rad.size();
+  const bool raw = params_.raw_sweep;
+  // Cast rays [lo, hi) into hits (from the frame's pose, or from each column's
   // pose for a raw sweep; moving cars at the frame's time either way), split into
   // contiguous chunks (threads only change speed).
   std::vector<RayHit> hits(n);
@@ -525,8 +533,21 @@ LidarSimulator::simulateFrame(std::size_t i,
     for (auto& t : pool)
       t.join();
   }
+  return hits;
+}
 
-  // 2. Sensor effects per ray from a hash of (seed, frame, ray): range noise,
+void
+LidarSimulator::sensorEffects(std::size_t i,
+                              const std::vector<RayHit>& hits,
+                              const std::vector<double>& column_tau_s,
+                              pcl::PointCloud<pcl::PointXYZI>& cloud,
+                              std::vector<float>* point_times_s) const
+{
+  const std::size_t n = ray_dirs_sensor_.size();
+  const std::size_t beams = spec_.beam_elevations_rad.size();
+  const int steps = spec_.azimuth_steps;
+  const bool raw = params_.raw_sweep;
+  // Sensor effects per ray from a hash of (seed, frame, ray): range noise,
   // dropouts (more at long range and grazing incidence), intensity from the
   // material's reflectivity, the incidence angle and the range. With imperfections
   // also mixed pixels, early outliers, the beam's range bias (imperfectRange, own

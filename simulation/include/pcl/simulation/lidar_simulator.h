@@ -521,6 +521,18 @@ public:
                             const ProgressCallback& progress = {}) const;
 
 private:
+  /// Step 1 of simulateFrame: every ray cast from the frame's pose, or from its
+  /// column's pose (\a T_world_column) for a raw sweep; moving cars at the frame's
+  /// time either way. Split into contiguous chunks over num_threads.
+  std::vector<RayHit> castFrame(std::size_t i, const PoseVector& T_world_column) const;
+  /// Step 2: the sensor effects on each hit (noise, dropouts, intensity,
+  /// imperfections) into \a cloud, in firing order for a raw sweep.
+  void sensorEffects(std::size_t i,
+                     const std::vector<RayHit>& hits,
+                     const std::vector<double>& column_tau_s,
+                     pcl::PointCloud<pcl::PointXYZI>& cloud,
+                     std::vector<float>* point_times_s) const;
+
   LidarSimulatorParams params_;
   SensorSpec spec_;
   PoseVector T_world_body_;
