@@ -77,6 +77,11 @@ inline const RgbColour kMarkerOutline{255, 255, 255};
 cv::Scalar
 toBgr(const RgbColour& c);
 
+/// Sub-pixel bits of OpenCV drawing, and a point in those fixed-point units.
+constexpr int kShift = 4;
+cv::Point
+fixedPoint(const cv::Point2d& p);
+
 /// Vertices of a marker: a disc (many sides) or an axis-aligned square (4 sides).
 std::vector<Eigen::Vector2d>
 markerPolygon(const Eigen::Vector3d& centre, double radius_m, bool square);
