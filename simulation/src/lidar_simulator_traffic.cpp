@@ -23,56 +23,6 @@ constexpr double kCrossHalfLengthM = 60.0; ///< cross traffic drives +- this fro
 constexpr double kStandingMps = 0.25;      ///< the ego is standing below this speed
 constexpr double kLaneMarginM = 3.0; ///< least bumper gap in a lane (inner side of bends)
 
-/// Uniform numbers from a counter: a stream per (seed, purpose, index).
-class Draw
-{
-public:
-  Draw(std::uint64_t seed, std::uint64_t purpose, std::uint64_t index)
-      : state_(simulator_detail::splitmix64(
-            simulator_detail::splitmix64(seed ^ 0x7AFF1CULL) ^ (purpose << 32) ^ index))
-  {}
-  double operator()(double lo, double hi)
-  {
-    state_ = simulator_detail::splitmix64(state_);
-    return lo + (hi - lo) * static_cast<double>(state_ >> 11) * 0x1.0p-53;
-  }
-
-private:
-  std::uint64_t state_;
-};
-
-/// Size and reflectivity ranges of each vehicle kind.
-struct KindSizes
-{
-  VehicleKind kind;
-  double length_m[2], width_m[2], height_m[2], reflectivity[2];
-};
-constexpr KindSizes kKindSizes[] = {
-    {VehicleKind::kCar, {3.8, 4.9}, {1.7, 1.95}, {1.4, 1.6}, {0.1, 0.9}},
-    {VehicleKind::kVan, {4.8, 5.6}, {1.9, 2.05}, {1.9, 2.4}, {0.1, 0.9}},
-    {VehicleKind::kTruck, {7.0, 10.0}, {2.4, 2.55}, {3.2, 3.8}, {0.3, 0.8}},
-    {VehicleKind::kBus, {11.0, 12.5}, {2.4, 2.55}, {3.0, 3.3}, {0.3, 0.8}}};
-
-/// Kind, size and reflectivity of a new vehicle: a share \a heavy_fraction of trucks
-/// and buses, of the rest a quarter vans.
-MovingVehicle
-drawVehicle(Draw& draw, double heavy_fraction)
-{
-  const double u = draw(0.0, 1.0);
-  const int kind = u < 0.5 * heavy_fraction ? 2
-                   : u < heavy_fraction     ? 3
-                   : draw(0.0, 1.0) < 0.25  ? 1
-                                            : 0;
-  const KindSizes& k = kKindSizes[kind];
-  MovingVehicle v;
-  v.kind = k.kind;
-  v.length_m = draw(k.length_m[0], k.length_m[1]);
-  v.width_m = draw(k.width_m[0], k.width_m[1]);
-  v.height_m = draw(k.height_m[0], k.height_m[1]);
-  v.reflectivity = static_cast<float>(draw(k.reflectivity[0], k.reflectivity[1]));
-  return v;
-}
-
 /// Whether two yaw-oriented rectangles (centre, yaw, half length, half width) overlap:
 /// no separating axis among their four edge directions.
 bool

@@ -1,6 +1,6 @@
 /// \file simulator_motion.cpp
 /// \brief The traffic's names and parameters, the motion profiles of stop-and-go paths
-/// and vehicles, and the boxes a vehicle is made of.
+/// and vehicles, the vehicles drawn from the seed and the boxes they are made of.
 
 #include "simulator_traffic.h"
 
@@ -151,6 +151,40 @@ vehicleBoxes(const MovingVehicle& v, std::vector<VehicleBox>& boxes)
     add(0.0, 0.3, H, L, W);
     break;
   }
+}
+
+namespace {
+
+/// Size and reflectivity ranges of each vehicle kind.
+struct KindSizes
+{
+  VehicleKind kind;
+  double length_m[2], width_m[2], height_m[2], reflectivity[2];
+};
+constexpr KindSizes kKindSizes[] = {
+    {VehicleKind::kCar, {3.8, 4.9}, {1.7, 1.95}, {1.4, 1.6}, {0.1, 0.9}},
+    {VehicleKind::kVan, {4.8, 5.6}, {1.9, 2.05}, {1.9, 2.4}, {0.1, 0.9}},
+    {VehicleKind::kTruck, {7.0, 10.0}, {2.4, 2.55}, {3.2, 3.8}, {0.3, 0.8}},
+    {VehicleKind::kBus, {11.0, 12.5}, {2.4, 2.55}, {3.0, 3.3}, {0.3, 0.8}}};
+
+} // namespace
+
+MovingVehicle
+drawVehicle(Draw& draw, double heavy_fraction)
+{
+  const double u = draw(0.0, 1.0);
+  const int kind = u < 0.5 * heavy_fraction ? 2
+                   : u < heavy_fraction     ? 3
+                   : draw(0.0, 1.0) < 0.25  ? 1
+                                            : 0;
+  const KindSizes& k = kKindSizes[kind];
+  MovingVehicle v;
+  v.kind = k.kind;
+  v.length_m = draw(k.length_m[0], k.length_m[1]);
+  v.width_m = draw(k.width_m[0], k.width_m[1]);
+  v.height_m = draw(k.height_m[0], k.height_m[1]);
+  v.reflectivity = static_cast<float>(draw(k.reflectivity[0], k.reflectivity[1]));
+  return v;
 }
 
 } // namespace simulator_detail

@@ -11,6 +11,8 @@
 #include <pcl/simulation/lidar_simulator.h>
 #include <vector>
 
+#include "simulator_hash.h"
+
 namespace pcl {
 namespace rast {
 namespace simulator_detail {
@@ -75,6 +77,30 @@ struct CrossRoad
 
 /// \brief The few boxes (body and cabin, cab and cargo, one for a bus) of \a vehicle.
 void vehicleBoxes(const MovingVehicle& vehicle, std::vector<VehicleBox>& boxes);
+
+/// Uniform numbers from a counter: a stream per (seed, purpose, index).
+class Draw
+{
+public:
+  Draw(std::uint64_t seed, std::uint64_t purpose, std::uint64_t index)
+      : state_(splitmix64(
+            splitmix64(seed ^ 0x7AFF1CULL) ^ (purpose << 32) ^ index))
+  {}
+  double operator()(double lo, double hi)
+  {
+    state_ = splitmix64(state_);
+    return lo + (hi - lo) * static_cast<double>(state_ >> 11) * 0x1.0p-53;
+  }
+
+private:
+  std::uint64_t state_;
+};
+
+/// Kind, size and reflectivity of a new vehicle: a share \a heavy_fraction of trucks
+/// and buses, of the rest a quarter vans.
+MovingVehicle
+drawVehicle(Draw& draw, double heavy_fraction);
+
 
 /// \brief The realistic traffic around one ego drive, deterministic for the seed.
 class TrafficModel
