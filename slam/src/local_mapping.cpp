@@ -40,9 +40,15 @@ public:
 
 private:
   long cellOf(double v) const { return static_cast<long>(std::floor(v * inv_cell_)); }
-  static long long key(long x, long y) { return (static_cast<long long>(x) << 32) ^ (y & 0xffffffffLL); }
+  /// x in the high, y in the low 32 bits; shifted as unsigned (a negative x shifted
+  /// as signed is undefined behaviour, UBSan's finding in issue 12).
+  static unsigned long long key(long x, long y)
+  {
+    return (static_cast<unsigned long long>(x) << 32) ^
+           (static_cast<unsigned long long>(y) & 0xffffffffULL);
+  }
   double inv_cell_;
-  std::unordered_map<long long, std::vector<int>> cells_;
+  std::unordered_map<unsigned long long, std::vector<int>> cells_;
 };
 
 } // namespace
