@@ -3,6 +3,8 @@
 /// hashing of the ORB descriptors), eligibility by key-frames and distance travelled,
 /// dense-check targets, and candidate retrieval by distance and appearance.
 
+#include "stage_util.h"
+
 #include <pcl/slam/keyframe_database.h>
 
 #include <algorithm>
@@ -15,7 +17,6 @@ namespace rast {
 
 namespace {
 
-constexpr double kDegPerRad = 180.0 / 3.14159265358979323846;
 constexpr double kDenseResolutionM = 0.01; // int16: +-327 m, far beyond the crop radius
 
 /// The 16-bit substring \a table of a descriptor, as a key of the inverted index.
@@ -27,11 +28,7 @@ substringKey(const OrbDescriptor& d, int table)
   return (static_cast<std::uint32_t>(table) << KeyFrameDatabase::kSubstringBits) | (hi << 8) | lo;
 }
 
-double
-rotationDeg(const Pose3d& T)
-{
-  return Eigen::AngleAxisd(T.rotation()).angle() * kDegPerRad;
-}
+using slam_detail::rotationDeg;
 
 /// Motion between consecutive key-frames: the tracking's relative pose when \a kf
 /// directly follows the key-frame at \a T_world_previous, else the pose difference.

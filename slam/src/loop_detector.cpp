@@ -3,6 +3,8 @@
 /// candidates of a query, most promising first, and detect() verifies them
 /// (loop_verifier.cpp) until enough are accepted.
 
+#include "stage_util.h"
+
 #include <pcl/slam/loop_detector.h>
 
 #include <chrono>
@@ -15,13 +17,8 @@ namespace rast {
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double
-msSince(Clock::time_point start)
-{
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
+using slam_detail::Clock;
+using slam_detail::msSince;
 
 } // namespace
 

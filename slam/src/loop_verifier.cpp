@@ -4,6 +4,8 @@
 /// (guidedEstimate), inlier spread, a unique hypothesis, consistency with odometry,
 /// self-similarity, the dense point-to-plane check and the final refinement.
 
+#include "stage_util.h"
+
 #include <pcl/slam/loop_detector.h>
 
 #include <Eigen/Eigenvalues>
@@ -21,21 +23,10 @@ namespace rast {
 
 namespace {
 
-constexpr double kDegPerRad = 180.0 / 3.14159265358979323846;
-
-using Clock = std::chrono::steady_clock;
-
-double
-msSince(Clock::time_point start)
-{
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
-
-double
-rotationDeg(const Pose3d& T)
-{
-  return Eigen::AngleAxisd(T.rotation()).angle() * kDegPerRad;
-}
+using slam_detail::Clock;
+using slam_detail::kDegPerRad;
+using slam_detail::msSince;
+using slam_detail::rotationDeg;
 
 std::string
 format(const char* fmt, double a, double b = 0.0, double c = 0.0, double d = 0.0)

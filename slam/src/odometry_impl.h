@@ -6,6 +6,7 @@
 /// installed.
 
 #include "odometry_local_map.h"
+#include "stage_util.h"
 
 #include <chrono>
 #include <memory>
@@ -29,13 +30,8 @@ using odometry_detail::VoxelPlaneMap;
 
 namespace odometry_detail {
 
-using Clock = std::chrono::steady_clock;
-
-inline double
-msSince(Clock::time_point start)
-{
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
+using slam_detail::Clock;
+using slam_detail::msSince;
 
 inline double
 angleDeg(const Pose3d& T)

@@ -4,6 +4,7 @@
 /// and the global bundle adjustment.
 
 #include "loop_closing.h"
+#include "stage_util.h"
 #include "work_queue.h"
 
 #include <pcl/slam/rast_slam.h>
@@ -28,13 +29,8 @@ namespace {
 using loop_closing_detail::optimizeKeyFrameGraph;
 using slam_detail::WorkQueue;
 
-using Clock = std::chrono::steady_clock;
-
-double
-msSince(Clock::time_point start)
-{
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
+using slam_detail::Clock;
+using slam_detail::msSince;
 
 /// CPU time of the calling thread [ms].
 double
