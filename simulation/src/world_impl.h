@@ -277,6 +277,15 @@ struct SimulatedWorld::Impl
   bool keep(const Primitive& p, double margin);
   /// Mean free path of tree crowns (0: solid).
   float crownFreePath() const;
+  Primitive treeCrown(double cx,
+                      double cy,
+                      double g,
+                      double trunk_h,
+                      double rx,
+                      double rz,
+                      float reflectivity) const;
+  Primitive treeTrunk(
+      double cx, double cy, double g, double trunk_h, double rz, double radius) const;
   /// The layers of the scenes other than suburbs.
   void placeSceneObjects();
   void placeUrbanCanyons();

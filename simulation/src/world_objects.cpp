@@ -57,6 +57,46 @@ SimulatedWorld::Impl::crownFreePath() const
                                   : 0.0f;
 }
 
+/// A tree's crown: an ellipsoid (radii rx, rx, rz) above a trunk of height trunk_h on
+/// the ground at g; porous with params.porous_vegetation.
+Primitive
+SimulatedWorld::Impl::treeCrown(double cx,
+                                double cy,
+                                double g,
+                                double trunk_h,
+                                double rx,
+                                double rz,
+                                float reflectivity) const
+{
+  Primitive crown;
+  crown.kind = Kind::kEllipsoid;
+  crown.cx = cx;
+  crown.cy = cy;
+  crown.cz = g + trunk_h + 0.8 * rz;
+  crown.hx = crown.hy = rx;
+  crown.hz = rz;
+  crown.reflectivity = reflectivity;
+  crown.mean_free_path = crownFreePath();
+  return crown;
+}
+
+/// The trunk of radius \a radius under treeCrown(cx, cy, g, trunk_h, rx, rz): from
+/// 0.5 m below the ground into the crown.
+Primitive
+SimulatedWorld::Impl::treeTrunk(
+    double cx, double cy, double g, double trunk_h, double rz, double radius) const
+{
+  Primitive trunk;
+  trunk.kind = Kind::kCylinder;
+  trunk.cx = cx;
+  trunk.cy = cy;
+  trunk.hx = radius;
+  trunk.hz = 0.5 * (trunk_h + 0.5 + 0.5 * rz);
+  trunk.cz = g - 0.5 + trunk.hz;
+  trunk.reflectivity = 0.35f;
+  return trunk;
+}
+
 /// Buildings on 16 m lots, set back from the corridor, some with an annex (L shape)
 /// or a rooftop structure.
 /// Urban canyons: only behind their facades (placeSceneObjects), denser.
@@ -122,7 +162,6 @@ void
 SimulatedWorld::Impl::placeRoadsideTreesAndPoles()
 {
   const double corridor = params.corridor_half_width_m;
-  const float crown_free_path = crownFreePath();
   forLots(
       2, 4.0, corridor + 0.5, corridor + 8.0, [&](Rng& rng, double x, double y, double) {
         const SceneType scene = sceneAt(x, y);
@@ -137,27 +176,11 @@ SimulatedWorld::Impl::placeRoadsideTreesAndPoles()
         if (u < tree_p) {
           const double trunk_h = rng.uniform(1.8, 3.5), rx = rng.uniform(1.2, 2.8);
           const double rz = rng.uniform(1.5, 3.5);
-          Primitive crown;
-          crown.kind = Kind::kEllipsoid;
-          crown.cx = cx;
-          crown.cy = cy;
-          crown.cz = g + trunk_h + 0.8 * rz;
-          crown.hx = crown.hy = rx;
-          crown.hz = rz;
-          crown.reflectivity = static_cast<float>(rng.uniform(0.4, 0.6));
-          crown.mean_free_path = crown_free_path;
-          if (!clearOfCorridor(crown, 0.0))
+          const Primitive crown = treeCrown(
+              cx, cy, g, trunk_h, rx, rz, static_cast<float>(rng.uniform(0.4, 0.6)));
+          if (!keep(crown, 0.0))
             return;
-          prims.push_back(crown);
-          Primitive trunk;
-          trunk.kind = Kind::kCylinder;
-          trunk.cx = cx;
-          trunk.cy = cy;
-          trunk.hx = rng.uniform(0.15, 0.3);
-          trunk.cz = g - 0.5 + 0.5 * (trunk_h + 0.5 + 0.5 * rz);
-          trunk.hz = 0.5 * (trunk_h + 0.5 + 0.5 * rz);
-          trunk.reflectivity = 0.35f;
-          prims.push_back(trunk);
+          prims.push_back(treeTrunk(cx, cy, g, trunk_h, rz, rng.uniform(0.15, 0.3)));
         } else if (u < tree_p + pole_p) {
           Primitive pole;
           pole.kind = Kind::kCylinder;
@@ -195,7 +218,6 @@ SimulatedWorld::Impl::placeParkTrees()
 {
   const double corridor = params.corridor_half_width_m;
   const double max_d = params.max_object_distance_m;
-  const float crown_free_path = crownFreePath();
   forLots(3, 9.0, corridor + 8.0, max_d, [&](Rng& rng, double x, double y, double d) {
     const SceneType scene = sceneAt(x, y);
     const bool highway = scene == SceneType::kHighway;
@@ -210,25 +232,11 @@ SimulatedWorld::Impl::placeParkTrees()
     const double g = groundAt(cx, cy);
     const double trunk_h = rng.uniform(1.5, 4.0), rx = rng.uniform(1.5, 4.0);
     const double rz = rng.uniform(2.0, 5.0);
-    Primitive crown;
-    crown.kind = Kind::kEllipsoid;
-    crown.cx = cx;
-    crown.cy = cy;
-    crown.cz = g + trunk_h + 0.8 * rz;
-    crown.hx = crown.hy = rx;
-    crown.hz = rz;
-    crown.reflectivity = static_cast<float>(rng.uniform(0.4, 0.6));
-    crown.mean_free_path = crown_free_path;
+    const Primitive crown =
+        treeCrown(cx, cy, g, trunk_h, rx, rz, static_cast<float>(rng.uniform(0.4, 0.6)));
     if (!keep(crown, 0.0))
       return;
-    Primitive trunk = crown;
-    trunk.mean_free_path = 0.0f;
-    trunk.kind = Kind::kCylinder;
-    trunk.hx = rng.uniform(0.2, 0.4);
-    trunk.hz = 0.5 * (trunk_h + 0.5 + 0.5 * rz);
-    trunk.cz = g - 0.5 + trunk.hz;
-    trunk.reflectivity = 0.35f;
-    prims.push_back(trunk);
+    prims.push_back(treeTrunk(cx, cy, g, trunk_h, rz, rng.uniform(0.2, 0.4)));
   });
 }
 
