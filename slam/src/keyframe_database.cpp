@@ -92,7 +92,11 @@ KeyFrameDatabase::decodeDense(const std::vector<DensePoint>& points)
 KeyFrameDatabase::KeyFrameDatabase(const LoopDetectorParams& params, BlobStore::Ptr dense_store)
   : params_(params)
   , dense_store_(dense_store ? std::move(dense_store) : std::make_shared<BlobStore>())
-{}
+{
+  std::string why;
+  if (!params.isValid(&why))
+    throw std::invalid_argument("KeyFrameDatabase: invalid params: " + why);
+}
 
 void
 KeyFrameDatabase::setPoseSource(PoseSource source)

@@ -10,6 +10,8 @@
 #include <pcl/registration/voxel_hash_map.h>
 #include <random>
 #include <set>
+#include <stdexcept>
+#include <string>
 #include <tuple>
 
 namespace {
@@ -83,6 +85,20 @@ TEST(VoxelOccupancy, KeepsTheFirstPointOfEachVoxelInInputOrder)
   EXPECT_TRUE(float_occupancy.insert(Eigen::Vector3f(0.1f, 0.1f, 0.1f)));
   EXPECT_FALSE(float_occupancy.insert(Eigen::Vector3f(0.4f, 0.2f, 0.3f)));
   EXPECT_TRUE(float_occupancy.insert(Eigen::Vector3f(-0.1f, 0.1f, 0.1f)));
+}
+
+TEST(DenseCore, InvalidSizesThrowNamingTheValue)
+{
+  for (const double bad : {0.0, -0.5, std::nan(""), HUGE_VAL}) {
+    EXPECT_THROW(VoxelOccupancy{bad}, std::invalid_argument) << bad;
+    EXPECT_THROW(PointToPlaneSystem{bad}, std::invalid_argument) << bad;
+  }
+  try {
+    VoxelOccupancy occupancy(-0.5);
+    FAIL() << "no exception";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("voxel_size_m"), std::string::npos) << e.what();
+  }
 }
 
 /// Residuals of a known small motion of points on three orthogonal planes (or the

@@ -453,6 +453,10 @@ TEST(KeyFrameDatabase, ReadsPosesFromTheirOwner)
   // Travel: 1 m to key-frame 1, 39 m to the skipped 2, 20.5 m back to the query.
   EXPECT_NEAR(travel_m, 1.0 + 39.0 + 20.5, 1e-9);
   EXPECT_NEAR(retrieved[0].travel_m, 0.0, 1e-12);
+  // Invalid params are refused, as by LoopDetector.
+  LoopDetectorParams bad = params;
+  bad.num_hash_tables = 0;
+  EXPECT_THROW(pcl::rast::KeyFrameDatabase{bad}, std::invalid_argument);
   // Ids the owner does not know yet fall back to the pose given when added.
   owner.resize(1);
   EXPECT_TRUE(db.pose(1).isApprox(yawPose(0.0, {1.0, 0.0, 0.0})));

@@ -9,6 +9,8 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <cmath>
+#include <stdexcept>
+#include <string>
 
 namespace pcl {
 namespace rast {
@@ -61,9 +63,15 @@ public:
   using Vector6d = Eigen::Matrix<double, 6, 1>;
   using Matrix6d = Eigen::Matrix<double, 6, 6>;
 
+  /// \throws std::invalid_argument when rotation_length_m is not finite and positive
   explicit PointToPlaneSystem(double rotation_length_m = 1.0)
       : rotation_length_m_(rotation_length_m)
-  {}
+  {
+    if (!(rotation_length_m > 0.0) || !std::isfinite(rotation_length_m))
+      throw std::invalid_argument(
+          "PointToPlaneSystem: rotation_length_m must be finite and > 0, got " +
+          std::to_string(rotation_length_m));
+  }
 
   /// \brief Point-to-plane residual r = n . (q - c) of a point at \a lever from the
   /// pivot, weight \a w: dr/domega = lever x n, dr/ddt = n.

@@ -7,8 +7,11 @@
 /// \ingroup registration
 
 #include <Eigen/Core>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <stdexcept>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -138,9 +141,13 @@ private:
 class VoxelOccupancy
 {
 public:
+  /// \throws std::invalid_argument when voxel_size_m is not finite and positive
   explicit VoxelOccupancy(double voxel_size_m, std::size_t expected_voxels = 8192)
       : inverse_size_(1.0 / voxel_size_m)
   {
+    if (!(voxel_size_m > 0.0) || !std::isfinite(voxel_size_m))
+      throw std::invalid_argument("VoxelOccupancy: voxel_size_m must be finite and > 0, got " +
+                                  std::to_string(voxel_size_m));
     occupied_.reset(expected_voxels);
   }
   /// \brief True when \a p is the first point of its voxel (which is now occupied).

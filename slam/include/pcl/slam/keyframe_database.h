@@ -58,9 +58,9 @@ public:
   /// ... so a 256-bit descriptor has at most this many tables.
   static constexpr int kMaxHashTables = 256 / kSubstringBits;
 
-  /// \param[in] params retrieval, eligibility and dense-target settings (validated by
-  /// the caller, LoopDetector)
+  /// \param[in] params retrieval, eligibility and dense-target settings
   /// \param[in] dense_store where the dense-check targets are kept (null: in memory)
+  /// \throws std::invalid_argument when !params.isValid() (message says why)
   explicit KeyFrameDatabase(const LoopDetectorParams& params,
                             BlobStore::Ptr dense_store = nullptr);
   ~KeyFrameDatabase();
