@@ -32,6 +32,10 @@ function(pcl_rast_add_module name)
   # their include paths.
   target_link_libraries(${target} PRIVATE ${ARG_PRIVATE_LIBS})
   target_compile_options(${target} PRIVATE -Wall -Wextra -Wno-unused-parameter)
+  # Unity batches of a few sources: PCL's and Eigen's headers are parsed once per batch,
+  # not once per file (doc/architecture.md, "Compile time").
+  set_target_properties(${target} PROPERTIES UNITY_BUILD ${PCL_RAST_UNITY_BUILD}
+                        UNITY_BUILD_BATCH_SIZE 4)
   install(TARGETS ${target} EXPORT pcl_rastTargets
           LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}
           ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}

@@ -22,7 +22,7 @@ namespace rast {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using simulator_detail::kPi;
 
 using simulator_detail::splitmix64;
 

@@ -15,7 +15,7 @@ namespace rast {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using simulator_detail::kPi;
 constexpr double kReachM = 250.0;      ///< cross traffic exists this close to the ego
 constexpr double kLaneWindowM = 150.0; ///< lane vehicles: at most this much arc length
                                        ///< around it
@@ -62,7 +62,7 @@ namespace simulator_detail {
 
 // ---- the traffic ----
 
-namespace {
+// The traffic's own types: named (not anonymous), as TrafficModel::Impl holds them.
 
 /// One vehicle of the realistic traffic and how it moves.
 struct Agent
@@ -90,7 +90,7 @@ struct EgoStop
   double cross_m; ///< the cross road's centre line is this far ahead
 };
 
-} // namespace
+
 
 struct TrafficModel::Impl
 {

@@ -1,13 +1,16 @@
 #pragma once
 /// \file simulator_hash.h
-/// \brief The simulator's portable hash (private to slam/src): the world, its noise and
-/// every ray's randomness derive from it, so results depend only on the seed.
+/// \brief The simulator's portable hash (private to simulation/src): the world, its noise
+/// and every ray's randomness derive from it, so results depend only on the seed. Also the
+/// one definition of pi that the simulator's units share.
 
 #include <cstdint>
 
 namespace pcl {
 namespace rast {
 namespace simulator_detail {
+
+constexpr double kPi = 3.14159265358979323846;
 
 /// SplitMix64 finalizer: a well-mixed 64-bit hash of \a x.
 inline std::uint64_t

@@ -4,6 +4,8 @@
 
 #include <pcl/simulation/lidar_simulator.h>
 
+#include "simulator_hash.h"
+
 #include "simulator_traffic.h" // MotionProfile
 
 #include <algorithm>
@@ -16,7 +18,7 @@ namespace rast {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using simulator_detail::kPi;
 
 /// Gentle hills: h(x, y) with h(0, 0) = 0 and slopes below ~4 % for A = 2 m.
 double

@@ -4,6 +4,8 @@
 
 #include <pcl/simulation/lidar_simulator.h>
 
+#include "simulator_hash.h"
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -13,7 +15,7 @@ namespace rast {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using simulator_detail::kPi;
 
 double
 deg(double d)

@@ -26,7 +26,7 @@ namespace pcl {
 namespace rast {
 namespace world_detail {
 
-constexpr double kPi = 3.14159265358979323846;
+using simulator_detail::kPi;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // ---- deterministic hashing and random numbers (portable, no std distributions) ----
