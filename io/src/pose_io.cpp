@@ -109,7 +109,7 @@ detectPoseFormat(const std::string& path)
     throw std::runtime_error("detectPoseFormat: cannot open '" + path + "'");
   std::string line;
   std::size_t line_number = 0;
-  while (std::getline(in, line)) {
+  while (readBoundedLine(in, line, path, line_number + 1)) {
     ++line_number;
     if (isSkippable(line))
       continue;
@@ -143,7 +143,7 @@ readTrajectory(const std::string& path, PoseFormat format)
   trajectory.format = format;
   std::string line;
   std::size_t line_number = 0;
-  while (std::getline(in, line)) {
+  while (readBoundedLine(in, line, path, line_number + 1)) {
     ++line_number;
     if (isSkippable(line))
       continue;
@@ -252,7 +252,7 @@ readKittiCalibTr(const std::string& calib_path)
     throw std::runtime_error("readKittiCalibTr: cannot open '" + calib_path + "'");
   std::string line;
   std::size_t line_number = 0;
-  while (std::getline(in, line)) {
+  while (readBoundedLine(in, line, calib_path, line_number + 1)) {
     ++line_number;
     auto tokens = tokenize(line);
     if (tokens.empty() || (tokens[0] != "Tr:" && tokens[0] != "Tr_velo_to_cam:"))

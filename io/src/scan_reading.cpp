@@ -3,6 +3,7 @@
 /// per-point time field found, validated and centred (doc/odometry.md).
 
 #include "scan_reading.h"
+#include "scan_parsing.h"
 
 #include <algorithm>
 #include <cctype>
@@ -14,8 +15,7 @@
 #include <limits>
 #include <map>
 #include <pcl/PCLPointCloud2.h>
-#include <pcl/io/pcd_io.h>
-#include <pcl/io/ply_io.h>
+#include <pcl/common/io.h> // getFieldSize
 #include <pcl/io/pose_io.h>
 #include <pcl/io/sequence_reader.h>
 #include <sstream>
@@ -47,7 +47,8 @@ namespace {
 
 constexpr std::size_t kKittiPointBytes = 4 * sizeof(float);
 
-/// Append a point when all four values are finite; otherwise count it as dropped.
+/// Append a point when its coordinates are finite; otherwise count it as dropped.
+/// Intensity is optional: a NaN or infinite one is stored as 0, not a reason to drop.
 /// \return true when the point was appended
 inline bool
 pushIfFinite(pcl::PointCloud<pcl::PointXYZI>& cloud,
@@ -57,13 +58,12 @@ pushIfFinite(pcl::PointCloud<pcl::PointXYZI>& cloud,
              float intensity,
              std::size_t& num_dropped)
 {
-  if (std::isfinite(x) && std::isfinite(y) && std::isfinite(z) &&
-      std::isfinite(intensity)) {
+  if (std::isfinite(x) && std::isfinite(y) && std::isfinite(z)) {
     pcl::PointXYZI p;
     p.x = x;
     p.y = y;
     p.z = z;
-    p.intensity = intensity;
+    p.intensity = std::isfinite(intensity) ? intensity : 0.0f;
     cloud.push_back(p);
     return true;
   }
@@ -369,65 +369,6 @@ readWholeFile(const std::string& path, std::uintmax_t size_bytes)
   return bytes;
 }
 
-/// PCD (ascii, binary, binary_compressed). The header and the data sizes are
-/// checked here before PCL parses the body: pcl::PCDReader::read crashes on some
-/// malformed files instead of reporting an error.
-void
-readPcd(const std::string& path, std::uintmax_t size_bytes, pcl::PCLPointCloud2& blob)
-{
-  const std::string bytes = readWholeFile(path, size_bytes);
-  std::istringstream stream(bytes);
-  pcl::PCDReader reader;
-  Eigen::Vector4f origin;
-  Eigen::Quaternionf orientation;
-  int version = 0;
-  int data_type = 0;
-  unsigned int data_idx = 0;
-  if (reader.readHeader(stream, blob, origin, orientation, version, data_type, data_idx) <
-          0 ||
-      blob.fields.empty() || blob.point_step == 0)
-    throw ScanReadError(path, "cannot parse .pcd file: invalid header (no FIELDS?)");
-  if (!findField(blob, {"x"}) || !findField(blob, {"y"}) || !findField(blob, {"z"}))
-    throw ScanReadError(path, "no x, y and z fields");
-  const std::uint64_t num_points = static_cast<std::uint64_t>(blob.width) * blob.height;
-  if (num_points == 0) {
-    blob.data.clear();
-    return;
-  }
-  if (data_idx > bytes.size())
-    throw ScanReadError(path,
-                        "cannot parse .pcd file: header runs past the end of the file");
-  const std::uint64_t available = bytes.size() - data_idx;
-  int status = -1;
-  if (data_type == 0) {
-    stream.clear();
-    stream.seekg(data_idx);
-    status = reader.readBodyASCII(stream, blob, version);
-  } else {
-    if (data_type == 1 && available < num_points * blob.point_step)
-      throw ScanReadError(path,
-                          "truncated binary .pcd: " + std::to_string(available) +
-                              " data bytes for " + std::to_string(num_points) +
-                              " points of " + std::to_string(blob.point_step) + " bytes");
-    if (data_type == 2) {
-      std::uint32_t compressed_size = 0;
-      if (available >= 8)
-        std::memcpy(&compressed_size, bytes.data() + data_idx, sizeof compressed_size);
-      if (available < 8 || available - 8 < compressed_size)
-        throw ScanReadError(path,
-                            "truncated binary_compressed .pcd: " +
-                                std::to_string(available) + " data bytes");
-    }
-    status = reader.readBodyBinary(reinterpret_cast<const unsigned char*>(bytes.data()),
-                                   blob,
-                                   version,
-                                   data_type == 2,
-                                   data_idx);
-  }
-  if (status < 0)
-    throw ScanReadError(path, "cannot parse .pcd file: malformed point data");
-}
-
 /// Load a PCD or PLY file and convert it; \a times as in blobToCloud().
 void
 readPclFile(const std::string& path,
@@ -438,17 +379,11 @@ readPclFile(const std::string& path,
             PointTimes* times)
 {
   pcl::PCLPointCloud2 blob;
-  try {
-    if (ext == ".pcd") {
-      readPcd(path, size_bytes, blob);
-    } else if (pcl::io::loadPLYFile(path, blob) < 0) {
-      throw ScanReadError(path, "cannot parse .ply file");
-    }
-  } catch (const ScanReadError&) {
-    throw;
-  } catch (const std::exception& e) {
-    throw ScanReadError(path, "cannot parse " + ext + " file: " + e.what());
-  }
+  const std::string bytes = readWholeFile(path, size_bytes);
+  if (ext == ".pcd")
+    parsePcd(path, bytes, blob);
+  else
+    parsePly(path, bytes, blob);
   RawTimes raw;
   blobToCloud(path, blob, cloud, num_dropped, times ? &raw : nullptr);
   if (!times)

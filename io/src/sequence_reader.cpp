@@ -108,7 +108,7 @@ readTimes(const std::string& path)
   std::vector<double> times;
   std::string line;
   std::size_t line_no = 0;
-  while (std::getline(in, line)) {
+  while (readBoundedLine(in, line, path, line_no + 1)) {
     ++line_no;
     if (line.find_first_not_of(" \t\r") == std::string::npos)
       continue;

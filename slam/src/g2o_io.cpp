@@ -6,6 +6,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <limits>
+#include <pcl/rast/text_lines.h>
 #include <pcl/slam/g2o_io.h>
 #include <pcl/rast/atomic_file.h>
 #include <sstream>
@@ -87,7 +88,7 @@ readG2o(const std::string& path)
   std::vector<std::pair<std::size_t, int>> fixed_ids;
   std::string text;
   std::size_t line = 0;
-  while (std::getline(in, text)) {
+  while (readBoundedLine(in, text, path, line + 1)) {
     ++line;
     std::istringstream fields(text);
     std::vector<std::string> tokens;

@@ -78,6 +78,21 @@ runTool(const std::string& name, const std::string& args, const std::filesystem:
   return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
 }
 
+/// \brief The bytes of a file (empty when it cannot be read).
+inline std::string
+readFile(const std::filesystem::path& path)
+{
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+/// \brief Write \a bytes as the whole file \a path.
+inline void
+writeFile(const std::filesystem::path& path, const std::string& bytes)
+{
+  std::ofstream(path, std::ios::binary) << bytes;
+}
+
 /// \brief Entries of folder \a dir (0 when it is no folder).
 inline std::size_t
 countFiles(const std::filesystem::path& dir)

@@ -6,6 +6,7 @@
 
 #include <pcl/rast/atomic_file.h>
 #include <pcl/rast/rigid_pose.h>
+#include <pcl/rast/text_lines.h>
 
 #include <cstdio>
 #include <functional>

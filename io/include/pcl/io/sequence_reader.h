@@ -37,20 +37,24 @@ private:
   std::string path_;
 };
 
-/// \brief Read one scan as x y z intensity, dropping points with a NaN/Inf coordinate
-/// or intensity. The format follows the extension (case-insensitive):
+/// \brief Read one scan as x y z intensity, dropping points with a NaN/Inf coordinate.
+/// Intensity is optional: without an intensity field, or where it is NaN/Inf, it is 0.
+/// The format follows the extension (case-insensitive):
 /// `.bin` (KITTI: float32 x y z intensity, little-endian, 16 bytes per point),
-/// `.pcd` (ascii, binary, binary_compressed) or `.ply`. PCD/PLY fields of any numeric
-/// type are converted to float; an intensity field may also be named
-/// `scalar_intensity`, `reflectance`, `remission` or `i`; without one, intensity is 0.
+/// `.pcd` (ascii, binary, binary_compressed) or `.ply` (the vertex element; ascii or
+/// binary). PCD/PLY fields of any numeric type are converted to float; an intensity
+/// field may also be named `scalar_intensity`, `reflectance`, `remission` or `i`.
+/// Nothing in a header is trusted: every declared count and size is checked against the
+/// file, and against 1 GiB of point data, before anything is allocated; an ascii value
+/// that is not a number of its declared type is an error, not a zero.
 /// The result is unorganized (height 1) and dense. Per-point times are not read here:
 /// SequenceReader::read() gives them (ScanFrame::point_times_s).
 /// \param[in] path the scan file
 /// \param[out] num_dropped_non_finite if not null, the number of dropped points
 /// \return the cloud (never null)
 /// \throws ScanReadError naming the file when it is missing, unreadable, empty,
-/// a truncated `.bin` (size not a multiple of 16), unparseable or lacks x/y/z,
-/// or has an unsupported extension.
+/// a truncated `.bin` (size not a multiple of 16), has a header that lies or data that
+/// does not parse, lacks x/y/z, or has an unsupported extension.
 /// \ingroup io
 pcl::PointCloud<pcl::PointXYZI>::Ptr
 readScan(const std::string& path, std::size_t* num_dropped_non_finite = nullptr);
