@@ -194,13 +194,24 @@ umeyamaAlignment(const std::vector<Eigen::Vector3d>& src,
   // Covariance Sigma = 1/n sum (dst - mu_dst)(src - mu_src)^T and variance of src (eq.
   // 36-38).
   Eigen::Matrix3d sigma = Eigen::Matrix3d::Zero();
-  double var_src = 0.0;
+  double var_src = 0.0, var_dst = 0.0;
   for (std::size_t i = 0; i < n; ++i) {
     sigma += (dst[i] - mu_dst) * (src[i] - mu_src).transpose();
     var_src += (src[i] - mu_src).squaredNorm();
+    var_dst += (dst[i] - mu_dst).squaredNorm();
   }
   sigma /= n;
   var_src /= n;
+  var_dst /= n;
+  // A scale between point sets is only defined when both spread: against a trajectory
+  // that stands still it would come out 0 and shrink the estimate onto it (ATE 0).
+  constexpr double kMinSpreadM = 1e-6;
+  if (with_scale && (var_src < kMinSpreadM * kMinSpreadM || var_dst < kMinSpreadM * kMinSpreadM))
+    throw std::invalid_argument(
+        "umeyamaAlignment: a Sim(3) alignment needs positions that spread, but the " +
+        std::string(var_src < var_dst ? "source" : "target") + " positions stay within " +
+        std::to_string(std::sqrt(std::min(var_src, var_dst))) +
+        " m (rms) of their mean; use an SE(3) alignment");
 
   const Eigen::JacobiSVD<Eigen::Matrix3d> svd(sigma,
                                               Eigen::ComputeFullU | Eigen::ComputeFullV);
@@ -210,9 +221,9 @@ umeyamaAlignment(const std::vector<Eigen::Vector3d>& src,
     s_diag(2) = -1.0;
   const Eigen::Matrix3d R =
       svd.matrixU() * s_diag.asDiagonal() * svd.matrixV().transpose();
-  // c = tr(D S) / var_src (eq. 42); a degenerate source (all points equal) keeps c = 1.
+  // c = tr(D S) / var_src (eq. 42).
   double c = 1.0;
-  if (with_scale && var_src > 0.0)
+  if (with_scale)
     c = svd.singularValues().dot(s_diag) / var_src;
 
   Pose3d T = Pose3d::Identity();

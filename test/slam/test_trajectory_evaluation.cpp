@@ -117,6 +117,25 @@ TEST(TrajectoryEvaluation, Sim3AlignmentRecoversScale)
   EXPECT_GT(evaluateTrajectory(est, gt).ate_rmse_m, 10.0); // SE(3) cannot fix scale
 }
 
+TEST(TrajectoryEvaluation, Sim3AgainstAStandingTrajectoryIsAnError)
+{
+  // Ground truth that never moves: a "scale" of 0 would shrink the estimate onto it and
+  // report ATE 0 (issue 12). It is an error naming the cause; SE(3) still evaluates.
+  const auto est = generatePath(200, 0.5);
+  const PoseVector gt(est.size(), someRigidTransform());
+  EvaluationParams sim3;
+  sim3.alignment = TrajectoryAlignment::kSim3;
+  try {
+    evaluateTrajectory(est, gt, sim3);
+    ADD_FAILURE() << "no error for a Sim(3) alignment to a standing trajectory";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("target positions stay within"), std::string::npos)
+        << e.what();
+  }
+  EXPECT_THROW(evaluateTrajectory(gt, est, sim3), std::invalid_argument);
+  EXPECT_GT(evaluateTrajectory(est, gt).ate_rmse_m, 1.0);
+}
+
 TEST(TrajectoryEvaluation, OnePercentScaleErrorIsOnePercent)
 {
   const auto gt = generatePath(5000, 0.25); // 1250 m

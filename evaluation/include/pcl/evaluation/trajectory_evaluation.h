@@ -99,7 +99,8 @@ struct EvaluationResult
 /// \param[in] with_scale estimate s (Sim(3)); otherwise s = 1 (SE(3))
 /// \param[out] scale the estimated scale (may be null)
 /// \return the rotation and translation (R, t)
-/// \throws std::invalid_argument on a size mismatch or fewer than 2 points.
+/// \throws std::invalid_argument on a size mismatch, fewer than 2 points, or, with
+/// \a with_scale, when either set stays within 1 um (rms) of its mean: no scale exists.
 Pose3d umeyamaAlignment(const std::vector<Eigen::Vector3d>& src,
                         const std::vector<Eigen::Vector3d>& dst,
                         bool with_scale,
