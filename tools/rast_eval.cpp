@@ -8,8 +8,10 @@
 /// Each file is KITTI (12 numbers a line) or TUM (8), detected automatically.
 
 #include "cli.h"
+#include "output_set.h"
 
 #include <chrono>
+#include <filesystem>
 #include <iostream>
 #include <pcl/io/pose_io.h>
 #include <pcl/evaluation/trajectory_evaluation.h>
@@ -84,6 +86,20 @@ run(int argc, char** argv)
   if (!params.isValid(&why))
     throw std::invalid_argument(why);
 
+  // An estimate from a pcl_rast output folder must belong to the set its summary.json
+  // lists: a file left by another run (a mixed folder) would be evaluated silently.
+  const std::filesystem::path estimate_dir =
+      std::filesystem::path(estimate_path).parent_path().empty()
+          ? std::filesystem::path(".")
+          : std::filesystem::path(estimate_path).parent_path();
+  const pcl_rast_tools::OutputSetCheck set = pcl_rast_tools::checkOutputSet(estimate_dir.string());
+  if (set.has_manifest && !set.complete) {
+    std::string problems;
+    for (const std::string& p : set.problems)
+      problems += "\n  " + p;
+    throw std::runtime_error(estimate_path + " is in a mixed output set (run " + set.run_id +
+                             " in summary.json):" + problems);
+  }
   const rast::Trajectory estimate = loadTrajectory(estimate_path);
   const rast::Trajectory ground_truth = loadTrajectory(gt_path);
 

@@ -19,6 +19,8 @@
 #include <pcl/io/sequence_reader.h>
 
 #include "cli.h"
+#include "output_set.h"
+#include "stop_signals.h"
 #include "sensor_choice.h"
 
 #include <nlohmann/json.hpp>
@@ -144,7 +146,10 @@ run(int argc, char** argv)
   options.last = last;
   options.stride = static_cast<std::size_t>(stride);
   rast::SequenceReader reader(input, options);
-  std::filesystem::create_directories(output);
+  checkOutputIsNotInput(output, reader.scanFolder());
+  // Staged, then published together (output_set.h): a failure or a second signal
+  // leaves the previous set as it was.
+  OutputSet outputs(output, "pcl_rast_odometry");
   std::fprintf(stderr, "Listed %s [%zu of %zu scans%s]\n", reader.scanFolder().c_str(),
                reader.size(), reader.numFiles(),
                reader.timesPath().empty() ? "" : ", times.txt");
@@ -175,7 +180,17 @@ run(int argc, char** argv)
   DeskewTally tally;
   ProgressBar bar("Odometry", reader.size());
   std::exception_ptr run_error; // ends the run; the frames before it are written
+  nlohmann::json skipped = nlohmann::json::array(); // scans that could not be read
+  installStopSignals();
+  std::size_t stopped_at = reader.size();
   for (std::size_t i = 0; i < reader.size() && !run_error; ++i) {
+    if (stopRequested()) {
+      stopped_at = i;
+      std::fprintf(stderr, "\npcl_rast_odometry: %s after %zu frames; writing the results so "
+                           "far (a second signal ends at once and keeps the previous output)\n",
+                   stopSignalName(), i);
+      break;
+    }
     rast::OdometryFrameResult r;
     try {
       fault.check("tracking", i);
@@ -187,6 +202,7 @@ run(int argc, char** argv)
     } catch (const rast::ScanReadError& e) {
       std::fprintf(stderr, "\nframe %zu: skipped: %s\n", i, e.what());
       r = odometry.skipFrame(reader.timestamp(i), i, e.what());
+      skipped.push_back({{"frame", i}, {"path", e.path()}, {"reason", e.what()}});
     } catch (...) {
       run_error = std::current_exception();
       continue;
@@ -220,10 +236,19 @@ run(int argc, char** argv)
     std::fprintf(stderr, "\npcl_rast_odometry: error at frame %zu: %s\n", poses.size(),
                  error_message.c_str());
   }
+  if (num_tracked == 0 && !run_error) {
+    // Identity poses for scans that were never read would pass for a result.
+    std::fprintf(stderr,
+                 "pcl_rast_odometry: error: none of the %zu scans could be used (%zu "
+                 "unreadable%s%s); no output was written\n",
+                 poses.size(), skipped.size(), skipped.empty() ? "" : ", the first: ",
+                 skipped.empty() ? "" : skipped.front()["reason"].get<std::string>().c_str());
+    return kExitAlgorithmFailure;
+  }
 
-  rast::writeKittiPoses(output + "/poses_kitti.txt", poses);
-  rast::writeTumPoses(output + "/poses_tum.txt", poses, times);
-  rast::writeFileAtomically(output + "/timing.csv", csv.str());
+  rast::writeKittiPoses(outputs.path("poses_kitti.txt"), poses);
+  rast::writeTumPoses(outputs.path("poses_tum.txt"), poses, times);
+  rast::writeFileAtomically(outputs.path("timing.csv"), csv.str());
 
   std::sort(totals.begin(), totals.end());
   const double median = totals.empty() ? 0.0 : totals[totals.size() / 2];
@@ -232,6 +257,9 @@ run(int argc, char** argv)
   summary["frames_selected"] = reader.size();
   summary["frames"] = poses.size();
   summary["frames_tracked"] = num_tracked;
+  summary["skipped_frames"] = skipped;
+  summary["interrupted"] = stopped_at < reader.size();
+  summary["stop_signal"] = stopRequested() ? nlohmann::json(stopSignalName()) : nlohmann::json(nullptr);
   summary["keyframes"] = odometry.numKeyFrames();
   summary["tracking_status"] = status_counts;
   summary["median_frame_ms"] = median;
@@ -245,9 +273,7 @@ run(int argc, char** argv)
                        {"time_field_warnings", tally.time_field_warnings}};
   summary["max_rotation_error"] = rast::maxRotationError(poses);
   summary["error"] = run_error ? nlohmann::json(error_message) : nlohmann::json(nullptr);
-  rast::writeFileAtomically(
-      output + "/summary.json",
-      summary.dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n");
+  outputs.publish(summary); // summary.json last: it lists the files of this run
   std::string counts;
   for (const auto& [name, count] : status_counts)
     counts += " " + name + "=" + std::to_string(count);

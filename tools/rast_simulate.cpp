@@ -18,7 +18,9 @@
 /// (pcl::rast::TrafficParams); `-stops N` makes a generated path stop and go.
 
 #include "cli.h"
+#include "stop_signals.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <pcl/simulation/lidar_simulator.h>
@@ -204,6 +206,7 @@ run(int argc, char** argv)
                                 std::to_string(last) + " outside the " +
                                 std::to_string(n) + " poses");
 
+  installStopSignals();
   const auto t0 = std::chrono::steady_clock::now();
   pcl::rast::LidarSimulator sim(params, T_world_body, times_s);
   const auto t1 = std::chrono::steady_clock::now();
@@ -220,8 +223,14 @@ run(int argc, char** argv)
       static_cast<std::size_t>(first),
       static_cast<std::size_t>(last),
       static_cast<std::size_t>(every),
-      [&bar](std::size_t done, std::size_t) { bar.update(done); });
+      [&bar](std::size_t done, std::size_t) { bar.update(done); },
+      [] { return stopRequested(); });
   bar.finish();
+  if (stopRequested())
+    std::fprintf(stderr,
+                 "pcl_rast_simulate: %s after %zu of %zu frames; the sequence holds those "
+                 "(a second signal ends at once)\n",
+                 stopSignalName(), written, total);
   const double ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1)
           .count();
@@ -230,13 +239,15 @@ run(int argc, char** argv)
                output.c_str(),
                ms,
                written,
-               ms / static_cast<double>(written));
+               ms / static_cast<double>(std::max<std::size_t>(written, 1)));
 
+  if (written == 0)
+    return kExitAlgorithmFailure; // stopped before the first frame: no sequence
   // The scene each written frame is in (DIR/scenes.txt, one name per line), and the
   // stretches on the console: per-scene figures need to know where each frame was.
   std::string scenes, stretches, previous;
   std::size_t line = 0, since = 0;
-  for (int i = first; i <= last; i += every, ++line) {
+  for (int i = first; line < written; i += every, ++line) {
     const Eigen::Vector3d t = T_world_body[static_cast<std::size_t>(i)].translation();
     const std::string name = pcl::rast::toString(sim.world().sceneAt(t.x(), t.y()));
     scenes += name + "\n";

@@ -10,6 +10,8 @@
 /// Ctrl-C stops reading; what was processed so far is finished and written.
 
 #include "cli.h"
+#include "output_set.h"
+#include "stop_signals.h"
 #include <pcl/visualization/map_render.h>
 #include "sensor_choice.h"
 
@@ -154,14 +156,6 @@ private:
   pcl::PointCloud<pcl::PointXYZI> top_;
 };
 
-std::atomic<bool> g_interrupted{false};
-
-extern "C" void
-onSigint(int)
-{
-  g_interrupted.store(true); // only an atomic flag: async-signal-safe
-}
-
 double
 peakRssMb()
 {
@@ -225,7 +219,7 @@ private:
   void run()
   {
     for (std::size_t i = 0; i < reader_.size(); ++i) {
-      if (g_interrupted.load())
+      if (pcl_rast_tools::stopRequested())
         break;
       ReadItem item;
       item.sequence_index = i;
@@ -275,28 +269,6 @@ poseJson(const rast::Pose3d& T)
     for (int c = 0; c < 4; ++c)
       m.push_back(T.matrix()(r, c));
   return m;
-}
-
-/// Checks the output folder can be written, before any work.
-void
-checkWritableFolder(const std::string& dir)
-{
-  std::error_code ec;
-  fs::create_directories(dir, ec);
-  if (!fs::is_directory(dir))
-    throw std::runtime_error("cannot create output folder " + dir +
-                             (ec ? ": " + ec.message() : ""));
-  const std::string probe = (fs::path(dir) / (".pcl_rast_slam_write_test." +
-                                               std::to_string(::getpid())))
-                                .string();
-  std::FILE* f = std::fopen(probe.c_str(), "wb");
-  if (!f)
-    throw std::runtime_error("output folder " + dir + " is not writable");
-  const bool ok = std::fputs("ok\n", f) >= 0;
-  const bool closed = std::fclose(f) == 0;
-  std::remove(probe.c_str());
-  if (!ok || !closed)
-    throw std::runtime_error("output folder " + dir + " is not writable");
 }
 
 /// Simulates the default demo sequence: a 220-frame HDL-64 loop drive.
@@ -403,7 +375,10 @@ run(int argc, char** argv)
   if (!params.isValid(&why))
     throw std::invalid_argument("invalid parameters: " + why);
 
-  checkWritableFolder(output); // I/O error (exit 2) before any work
+  // The run's files are staged and published together at the end (output_set.h): a
+  // failure or a second signal leaves the previous set as it was. I/O errors (exit 2)
+  // come here, before any work.
+  pcl_rast_tools::OutputSet outputs(output, "pcl_rast_slam");
   // Key-frame clouds wait for the final map in an anonymous file there, not in memory.
   params.spill_directory = output;
   if (input.empty()) {
@@ -418,6 +393,7 @@ run(int argc, char** argv)
   options.last = last;
   options.stride = static_cast<std::size_t>(stride);
   rast::SequenceReader reader(input, options);
+  pcl_rast_tools::checkOutputIsNotInput(output, reader.scanFolder());
   std::cerr << "Input " << reader.scanFolder() << " [" << reader.numFiles() << " scans, "
             << reader.size() << " selected"
             << (reader.timesPath().empty() ? "" : ", times from " + reader.timesPath())
@@ -437,16 +413,42 @@ run(int argc, char** argv)
   if (!params.isValid(&why))
     throw std::logic_error("sensor preset made invalid parameters: " + why);
 
-  // Ground truth, one pose per selected frame, re-based on the first.
+  // Ground truth paired with the selected frames as pcl_rast_eval pairs poses_tum.txt
+  // with it: a TUM file by timestamp (nearest within 0.01 s, each pose used once), a
+  // KITTI file by index. Re-based on the first paired pose.
+  std::vector<std::size_t> gt_frame; // the selected frame each gt pose belongs to
   rast::PoseVector gt;
   if (!gt_path.empty()) {
     const rast::Trajectory trajectory = rast::readTrajectory(gt_path);
     const std::size_t n = trajectory.poses.size();
-    if (n == reader.numFiles()) {
+    if (trajectory.format == rast::PoseFormat::kTum) {
+      std::vector<double> frame_times(reader.size());
       for (std::size_t i = 0; i < reader.size(); ++i)
+        frame_times[i] = reader.timestamp(i);
+      const rast::EvaluationParams defaults;
+      for (const auto& [i, j] : rast::associateByTimestamp(frame_times, trajectory.timestamps_s,
+                                                           defaults.max_time_difference_s)) {
+        gt_frame.push_back(i);
+        gt.push_back(trajectory.poses[j]);
+      }
+      if (gt.size() < 2)
+        throw std::invalid_argument(
+            "-gt " + gt_path + ": only " + std::to_string(gt.size()) + " of its " +
+            std::to_string(n) + " TUM poses have a scan within " +
+            std::to_string(defaults.max_time_difference_s) + " s (scan times come from " +
+            (reader.timesPath().empty() ? std::string("the file index: no times.txt")
+                                        : reader.timesPath()) +
+            "); need at least 2");
+    }
+    else if (n == reader.numFiles()) {
+      for (std::size_t i = 0; i < reader.size(); ++i) {
+        gt_frame.push_back(i);
         gt.push_back(trajectory.poses.at(first + i * stride));
+      }
     }
     else if (n == reader.size()) {
+      for (std::size_t i = 0; i < n; ++i)
+        gt_frame.push_back(i);
       gt = trajectory.poses;
     }
     else {
@@ -464,7 +466,7 @@ run(int argc, char** argv)
       pcl_rast_tools::injectedFault({"tracking", "local_mapping", "loop_closing"});
 
   // ---- run ----
-  std::signal(SIGINT, onSigint);
+  pcl_rast_tools::installStopSignals();
   const auto wall_start = std::chrono::steady_clock::now();
   rast::RastSlam slam(params);
   if (fault.active)
@@ -483,7 +485,7 @@ run(int argc, char** argv)
     if (!quiet)
       bar.emplace("pcl_rast_slam", reader.size());
     ReadItem item;
-    while (!g_interrupted.load() && prefetcher.next(item)) {
+    while (!pcl_rast_tools::stopRequested() && prefetcher.next(item)) {
       if (item.ok) {
         if (item.frame.cloud->empty()) {
           slam.addSkippedScan(item.sequence_index, item.timestamp_s, "empty scan", item.path);
@@ -512,10 +514,11 @@ run(int argc, char** argv)
   } catch (...) {
     run_error = std::current_exception();
   }
-  const bool interrupted = g_interrupted.load();
+  const bool interrupted = pcl_rast_tools::stopRequested();
   if (interrupted)
-    std::cerr << "pcl_rast_slam: interrupted after " << processed
-              << " frames; finishing and writing the results so far\n";
+    std::cerr << "pcl_rast_slam: " << pcl_rast_tools::stopSignalName() << " after " << processed
+              << " frames; finishing and writing the results so far (a second signal ends "
+                 "at once and keeps the previous output)\n";
   try {
     slam.finish(); // joins the stages; rethrows a stage's error once
   } catch (...) {
@@ -528,6 +531,18 @@ run(int argc, char** argv)
       std::rethrow_exception(run_error); // nothing was processed: nothing to save
     std::cerr << "\npcl_rast_slam: error: " << error_message << "\npcl_rast_slam: writing the "
               << slam.frames().size() << " frames processed before it\n";
+  }
+  std::size_t num_used = 0;
+  for (const auto& f : slam.frames())
+    num_used += f.skipped ? 0 : 1;
+  if (num_used == 0 && !run_error) {
+    // Identity poses for scans that were never read would pass for a result.
+    std::cerr << "pcl_rast_slam: error: none of the " << processed << " scans could be used ("
+              << skipped.size() << " unreadable or empty"
+              << (skipped.empty() ? std::string()
+                                  : ", the first: " + skipped.front()["reason"].get<std::string>())
+              << "); no output was written\n";
+    return pcl_rast_tools::kExitAlgorithmFailure;
   }
   const double processing_peak_rss_mb = peakRssMb();
   const double wall_s =
@@ -543,9 +558,8 @@ run(int argc, char** argv)
   std::vector<double> times;
   for (const auto& f : slam.frames())
     times.push_back(f.timestamp_s);
-  const fs::path out(output);
-  rast::writeKittiPoses((out / "poses_kitti.txt").string(), poses);
-  rast::writeTumPoses((out / "poses_tum.txt").string(), poses, times);
+  rast::writeKittiPoses(outputs.path("poses_kitti.txt"), poses);
+  rast::writeTumPoses(outputs.path("poses_tum.txt"), poses, times);
 
   const rast::PoseVector kf_poses = slam.keyFramePoses();
   const auto keyframes = slam.keyFrames();
@@ -568,7 +582,7 @@ run(int argc, char** argv)
     kf_positions.push_back(T.translation());
   RenderCloud render_map(R_level, kf_positions, map_leaf_m, render_params);
   // map.pcd is written tile by tile: the whole map is never held in memory.
-  rast::PcdStreamWriter pcd((out / "map.pcd").string());
+  rast::PcdStreamWriter pcd(outputs.path("map.pcd"));
   slam.map()->forEachMapTile(map_leaf_m, [&](const pcl::PointCloud<pcl::PointXYZI>& tile) {
     pcd.append(tile);
     render_map.add(tile);
@@ -580,8 +594,8 @@ run(int argc, char** argv)
   render_input.map_points_total = map_points;
   for (const auto& T : slam.framePoses())
     render_input.trajectory.push_back(R_level * T.translation());
-  for (std::size_t i = 0; i < std::min(gt.size(), poses.size()); ++i)
-    render_input.ground_truth.push_back(R_level * gt[i].translation());
+  for (std::size_t k = 0; k < gt.size() && gt_frame[k] < poses.size(); ++k)
+    render_input.ground_truth.push_back(R_level * gt[k].translation());
   json loop_json = json::array();
   for (const auto& e : slam.loops()) {
     if (e.active)
@@ -600,7 +614,7 @@ run(int argc, char** argv)
     sequence_name = fs::path(reader.scanFolder()).parent_path().filename();
   render_input.title = "pcl_rast_slam: " + sequence_name.string();
   const auto render = pcl::rast::renderMapTopDown(render_input, render_params,
-                                                       (out / "render.png").string());
+                                                       outputs.path("render.png"));
   if (!render.success)
     std::cerr << "pcl_rast_slam: warning: render.png not written: " << render.message << "\n";
 
@@ -610,6 +624,7 @@ run(int argc, char** argv)
   summary["frames"] = stats.frames;
   summary["frames_selected"] = reader.size();
   summary["interrupted"] = interrupted;
+  summary["stop_signal"] = interrupted ? json(pcl_rast_tools::stopSignalName()) : json(nullptr);
   summary["error"] = run_error ? json(error_message) : json(nullptr);
   summary["deskew"] = {{"mode", rast::toString(params.odometry.deskew.mode)},
                        {"frames_by_time_source", tally.frames_by_time_source},
@@ -670,11 +685,14 @@ run(int argc, char** argv)
                        {"stride", stride},
                        {"ba_window", params.local_mapping.window_size}};
   if (!gt.empty()) {
-    const std::size_t n = std::min(gt.size(), poses.size());
+    rast::PoseVector gt_n, est_n; // the pairs whose frame was processed
+    for (std::size_t k = 0; k < gt.size() && gt_frame[k] < poses.size(); ++k) {
+      gt_n.push_back(gt[k]);
+      est_n.push_back(poses[gt_frame[k]]);
+    }
     summary["gt"] = gt_path;
-    if (n >= 2) {
-      const rast::PoseVector gt_n(gt.begin(), gt.begin() + n);
-      const rast::PoseVector est_n(poses.begin(), poses.begin() + n);
+    summary["gt_pairs"] = gt_n.size();
+    if (gt_n.size() >= 2) {
       const rast::EvaluationResult ev = rast::evaluateTrajectory(est_n, gt_n);
       summary["ate_rmse_m"] = ev.ate_rmse_m;
       summary["ate_max_m"] = ev.ate_max_m;
@@ -691,11 +709,10 @@ run(int argc, char** argv)
       summary["kitti_r_err_deg_per_100m"] = nullptr;
     }
   }
-  // Paths and messages may hold any bytes: invalid UTF-8 is replaced, never a throw.
-  rast::writeFileAtomically((out / "summary.json").string(),
-                            summary.dump(2, ' ', false, json::error_handler_t::replace) + "\n");
+  outputs.publish(summary); // summary.json last: it lists the files of this run
 
-  std::cerr << "Wrote " << (out / "poses_kitti.txt").string() << ", poses_tum.txt, map.pcd ("
+  std::cerr << "Wrote " << (fs::path(output) / "poses_kitti.txt").string()
+            << ", poses_tum.txt, map.pcd ("
             << map_points << " points), render.png (" << render.backend
             << "), summary.json\n";
   std::cerr << stats.frames << " frames, " << stats.keyframes << " key-frames, "

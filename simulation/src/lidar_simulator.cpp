@@ -502,7 +502,8 @@ LidarSimulator::writeSequence(const std::string& dir,
                               std::size_t first,
                               std::size_t last,
                               std::size_t every,
-                              const ProgressCallback& progress) const
+                              const ProgressCallback& progress,
+                              const std::function<bool()>& stop) const
 {
   if (first > last || last >= numFrames() || every < 1)
     throw std::invalid_argument(
@@ -527,7 +528,8 @@ LidarSimulator::writeSequence(const std::string& dir,
   pcl::PointCloud<pcl::PointXYZI> cloud;
   std::vector<float> point_times_s;
   pcl::PointCloud<PointXYZIT> timed;
-  for (std::size_t k = 0; k < total; ++k) {
+  std::size_t written = 0;
+  for (std::size_t k = 0; k < total && !(stop && stop()); ++k, ++written) {
     const std::size_t i = first + k * every;
     simulateFrame(i, cloud, with_time ? &point_times_s : nullptr);
     char name[32];
@@ -567,7 +569,7 @@ LidarSimulator::writeSequence(const std::string& dir,
   }
   writeKittiPoses((fs::path(dir) / "poses.txt").string(), poses);
   writeFileAtomically((fs::path(dir) / "times.txt").string(), times.str());
-  return total;
+  return written;
 }
 
 } // namespace rast

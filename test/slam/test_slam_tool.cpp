@@ -11,6 +11,7 @@
 #include <unistd.h>
 #include <nlohmann/json.hpp>
 
+#include "simulated_drive.h"
 #include "test_data.h"
 
 #include <filesystem>
@@ -37,30 +38,14 @@ countLines(const fs::path& path)
   return n;
 }
 
-std::string
-readText(const fs::path& path)
-{
-  std::ifstream in(path);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
+using pcl_rast_test::readFile;
 
 /// A 40-frame straight HDL-64 drive written once, frame 12 truncated (corrupt).
 const fs::path&
 sequenceDir()
 {
   static const fs::path dir = [] {
-    // One folder per process: ctest -j runs this binary's test cases in parallel.
-    const fs::path d = fs::temp_directory_path() / "pcl_rast_test" /
-                       ("slam_tool_sequence_" + std::to_string(::getpid()));
-    fs::remove_all(d);
-    pcl::rast::PathParams path;
-    path.type = pcl::rast::PathType::kStraight;
-    path.num_frames = 40;
-    pcl::rast::LidarSimulatorParams params;
-    params.seed = 5;
-    params.num_threads = 2;
-    pcl::rast::LidarSimulator sim(params, pcl::rast::generatePath(path));
-    sim.writeSequence(d.string(), pcl::rast::ScanFormat::kBin, 0, 39);
+    const fs::path d = pcl_rast_test::simulateStraightDrive("slam_tool_sequence");
     fs::resize_file(d / "velodyne" / "000012.bin", 10); // not a multiple of 16 bytes
     return d;
   }();
@@ -87,7 +72,7 @@ TEST_F(SlamTool, WritesEveryOutputWithTheContractedContent)
   const int rc = runTool("-input '" + seq.string() + "' -output '" + out.string() + "' -gt '" +
                              (seq / "poses.txt").string() + "' -software-render",
                          log_);
-  ASSERT_EQ(rc, 0) << readText(log_);
+  ASSERT_EQ(rc, 0) << readFile(log_);
   for (const char* f : {"poses_kitti.txt", "poses_tum.txt", "map.pcd", "render.png", "summary.json"})
     EXPECT_TRUE(fs::exists(out / f)) << f;
   EXPECT_EQ(countLines(out / "poses_kitti.txt"), 40u);
@@ -101,7 +86,7 @@ TEST_F(SlamTool, WritesEveryOutputWithTheContractedContent)
   ASSERT_EQ(pcl::io::loadPCDFile((out / "map.pcd").string(), map), 0);
   EXPECT_GT(map.size(), 1000u);
 
-  const auto summary = nlohmann::json::parse(readText(out / "summary.json"));
+  const auto summary = nlohmann::json::parse(readFile(out / "summary.json"));
   for (const char* key : {"frames", "skipped_frames", "keyframes", "loops_accepted",
                           "loops_rejected", "timing_ms", "wall_s", "fps", "peak_rss_mb",
                           "ate_rmse_m", "kitti_t_err_pct", "kitti_r_err_deg_per_100m"})
@@ -133,7 +118,7 @@ TEST_F(SlamTool, GroundTruthOfWrongLengthIsAnErrorBeforeAnyWork)
                         (dir_ / "short.txt").string() + "'",
                     log_),
             1);
-  EXPECT_NE(readText(log_).find("37"), std::string::npos) << readText(log_);
+  EXPECT_NE(readFile(log_).find("37"), std::string::npos) << readFile(log_);
   EXPECT_FALSE(fs::exists(out / "summary.json"));
 }
 
@@ -144,7 +129,7 @@ TEST_F(SlamTool, UnwritableOutputIsAnIoError)
   EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + out.string() + "'",
                     log_),
             2);
-  EXPECT_NE(readText(log_).find("out"), std::string::npos);
+  EXPECT_NE(readFile(log_).find("out"), std::string::npos);
 }
 
 TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
@@ -153,7 +138,7 @@ TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
                         "/o' -no-such-flag",
                     log_),
             1);
-  EXPECT_NE(readText(log_).find("no-such-flag"), std::string::npos);
+  EXPECT_NE(readFile(log_).find("no-such-flag"), std::string::npos);
   EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "'", log_), 1);
   EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + dir_.string() +
                         "/o' -stride 0",
@@ -163,11 +148,11 @@ TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
                         "/o' -young-map-scans 0",
                     log_),
             1);
-  EXPECT_NE(readText(log_).find("-young-map-scans must be >= 1, got 0"), std::string::npos);
+  EXPECT_NE(readFile(log_).find("-young-map-scans must be >= 1, got 0"), std::string::npos);
   EXPECT_FALSE(std::filesystem::exists(dir_ / "o" / "summary.json")) << "no work before the check";
   EXPECT_EQ(runTool("-h", log_), 0);
-  EXPECT_NE(readText(log_).find("-map-leaf"), std::string::npos);
-  EXPECT_NE(readText(log_).find("-no-revisit-culling"), std::string::npos);
+  EXPECT_NE(readFile(log_).find("-map-leaf"), std::string::npos);
+  EXPECT_NE(readFile(log_).find("-no-revisit-culling"), std::string::npos);
 }
 
 /// An exception in the loop-closing thread mid-run (injected at its second key-frame)
@@ -182,10 +167,10 @@ TEST_F(SlamTool, AnErrorInTheLoopClosingThreadStillWritesEveryOutputAndExitsThre
                              (seq / "poses.txt").string() + "' -software-render -quiet",
                          log_);
   ::unsetenv("PCL_RAST_INJECT_FAULT");
-  ASSERT_EQ(rc, 3) << readText(log_);
+  ASSERT_EQ(rc, 3) << readFile(log_);
   for (const char* f : {"poses_kitti.txt", "poses_tum.txt", "map.pcd", "render.png", "summary.json"})
     EXPECT_TRUE(fs::exists(out / f)) << f;
-  const auto summary = nlohmann::json::parse(readText(out / "summary.json"));
+  const auto summary = nlohmann::json::parse(readFile(out / "summary.json"));
   ASSERT_TRUE(summary["error"].is_string()) << summary.dump();
   EXPECT_NE(summary["error"].get<std::string>().find("injected fault (PCL_RAST_INJECT_FAULT="
                                                      "loop_closing:1)"),
@@ -200,15 +185,15 @@ TEST_F(SlamTool, AnErrorInTheLoopClosingThreadStillWritesEveryOutputAndExitsThre
   pcl::PointCloud<pcl::PointXYZI> map;
   ASSERT_EQ(pcl::io::loadPCDFile((out / "map.pcd").string(), map), 0);
   EXPECT_GT(map.size(), 1000u);
-  EXPECT_NE(readText(log_).find("injected fault"), std::string::npos);
+  EXPECT_NE(readFile(log_).find("injected fault"), std::string::npos);
 
   // The same run without the fault: exit 0 and a null error.
   ASSERT_EQ(runTool("-input '" + seq.string() + "' -output '" + out.string() +
                         "' -software-render -quiet",
                     log_),
             0)
-      << readText(log_);
-  EXPECT_TRUE(nlohmann::json::parse(readText(out / "summary.json"))["error"].is_null());
+      << readFile(log_);
+  EXPECT_TRUE(nlohmann::json::parse(readFile(out / "summary.json"))["error"].is_null());
 }
 
 } // namespace

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <csignal>
 #include <iomanip>
 #include <iostream>
 #include <limits>
@@ -273,6 +274,9 @@ ArgParser::usage() const
 int
 runTool(const std::string& program, const std::function<int()>& body)
 {
+  // A closed pipe on stdout/stderr (`tool ... | head`) fails those writes; it never
+  // kills a run (long-running tools also take SIGINT/TERM/HUP: stop_signals.h).
+  std::signal(SIGPIPE, SIG_IGN);
   try {
     return body();
   }

@@ -77,7 +77,7 @@ private:
   std::vector<Option> positionals_;
 };
 
-/// \brief Run a tool's body: ArgumentError -> usage hint and exit 1,
+/// \brief Run a tool's body with SIGPIPE ignored: ArgumentError -> usage hint and exit 1,
 /// std::invalid_argument -> exit 1, other std::exception -> exit 2 (I/O),
 /// each printed as "program: error: ..." on stderr.
 int runTool(const std::string& program, const std::function<int()>& body);

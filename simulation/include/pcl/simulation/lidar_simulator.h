@@ -511,6 +511,8 @@ public:
   /// one more float field `time`: seconds since the sweep start (tau + period / 2, in
   /// [0, period]) as the Velodyne driver writes it; `.bin` files cannot carry it (it
   /// is implied by the azimuth) and are written as for instantaneous scans.
+  /// When \a stop returns true before a frame, the sequence ends there: poses.txt and
+  /// times.txt describe the frames written so far.
   /// \return the number of frames written.
   /// \throws std::invalid_argument on a bad range, std::runtime_error on I/O failure.
   std::size_t writeSequence(const std::string& dir,
@@ -518,7 +520,8 @@ public:
                             std::size_t first,
                             std::size_t last,
                             std::size_t every = 1,
-                            const ProgressCallback& progress = {}) const;
+                            const ProgressCallback& progress = {},
+                            const std::function<bool()>& stop = {}) const;
 
 private:
   /// Step 1 of simulateFrame: every ray cast from the frame's pose, or from its

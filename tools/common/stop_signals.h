@@ -1,0 +1,24 @@
+#pragma once
+/// \file stop_signals.h
+/// \brief How every long-running tool ends on a signal (issue 12): SIGINT, SIGTERM and
+/// SIGHUP ask it to stop; it finishes or drops the current frame and writes complete
+/// outputs. A second such signal ends the process at once (exit 128 + signal) without
+/// touching the last complete output set. SIGPIPE is ignored: a closed pipe on stderr
+/// (`pcl_rast_slam ... 2>&1 | head`) fails those writes instead of killing the run, and
+/// so is SIGXFSZ: a file size limit fails the write with an error that names it.
+
+namespace pcl_rast_tools {
+
+/// \brief Install the handlers. Call once, before the work starts.
+void installStopSignals();
+
+/// \brief Whether a stop was asked for (async-signal-safe flag).
+bool stopRequested();
+
+/// \brief The signal that asked for the stop (SIGINT, SIGTERM, SIGHUP), or 0.
+int stopSignal();
+
+/// \brief The signal's name ("SIGTERM"), or "" when none came.
+const char* stopSignalName();
+
+} // namespace pcl_rast_tools
