@@ -12,6 +12,7 @@ packages=(
   nlohmann-json3-dev    # JSON summaries and evaluation output
   libgtest-dev libgmock-dev libbenchmark-dev
   xvfb xauth libgl1-mesa-dri libx11-dev  # offscreen VTK rendering (Debian VTK is X-only)
+  clang libclang-rt-14-dev  # libFuzzer for scripts/fuzz.sh (the sanitizers of CI are gcc's)
 )
 
 missing=()

@@ -48,7 +48,7 @@ int
 run(int argc, char** argv)
 {
   const rast::EvaluationParams defaults;
-  std::string estimate_path, gt_path;
+  std::string estimate_path, gt_path, check_dir;
   bool json = false;
   std::string align = rast::toString(defaults.alignment);
   std::string associate = "auto";
@@ -58,8 +58,13 @@ run(int argc, char** argv)
                    "Evaluate an estimated trajectory against ground truth (KITTI or TUM "
                    "pose files, auto-detected): ATE after alignment, KITTI odometry "
                    "relative errors (devkit definition), per-frame RPE.");
-  parser.addPositional("EST", "estimated poses (KITTI or TUM)", &estimate_path);
-  parser.addPositional("GT", "ground-truth poses (KITTI or TUM)", &gt_path);
+  parser.addString("check-output",
+                   "only check that the output folder DIR holds one complete set (every file "
+                   "summary.json lists, with its size and CRC-32): exit 0 when it does, 2 when "
+                   "not; EST and GT are then not given",
+                   &check_dir);
+  parser.addPositional("EST", "estimated poses (KITTI or TUM)", &estimate_path, true);
+  parser.addPositional("GT", "ground-truth poses (KITTI or TUM)", &gt_path, true);
   parser.addSwitch("json", "print one JSON object instead of text", &json);
   parser.addChoice("align",
                    "alignment of the estimate before the ATE",
@@ -73,6 +78,22 @@ run(int argc, char** argv)
   parser.addDouble("max_dt", "largest timestamp difference of a pair [s]", &max_dt_s);
   if (!parser.parse(argc, argv))
     return pcl_rast_tools::kExitOk;
+  if (!check_dir.empty()) {
+    if (!estimate_path.empty() || !gt_path.empty())
+      throw pcl_rast_tools::ArgumentError("-check-output takes no EST or GT");
+    const pcl_rast_tools::OutputSetCheck set = pcl_rast_tools::checkOutputSet(check_dir);
+    if (set.complete) {
+      std::cout << check_dir << ": complete output set of run " << set.run_id << "\n";
+      return pcl_rast_tools::kExitOk;
+    }
+    std::cout << check_dir << ": not a complete output set"
+              << (set.run_id.empty() ? "" : " (summary.json of run " + set.run_id + ")") << "\n";
+    for (const std::string& p : set.problems)
+      std::cout << "  " << p << "\n";
+    return pcl_rast_tools::kExitIoError;
+  }
+  if (estimate_path.empty() || gt_path.empty())
+    throw pcl_rast_tools::ArgumentError("EST and GT are required (or -check-output DIR)");
 
   rast::EvaluationParams params;
   params.alignment = align == "none"   ? rast::TrajectoryAlignment::kNone

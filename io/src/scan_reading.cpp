@@ -92,31 +92,22 @@ checkRegularNonEmptyFile(const std::string& path)
   return size;
 }
 
-/// KITTI .bin: one read of the whole file into a float buffer, then one pass.
+/// KITTI .bin: float32 x y z intensity, 16 bytes per point.
 void
 readKittiBin(const std::string& path,
-             std::uintmax_t size_bytes,
+             const std::string& bytes,
              pcl::PointCloud<pcl::PointXYZI>& cloud,
              std::size_t& num_dropped)
 {
-  if (size_bytes % kKittiPointBytes != 0)
+  if (bytes.size() % kKittiPointBytes != 0)
     throw ScanReadError(path,
-                        "truncated KITTI .bin: size " + std::to_string(size_bytes) +
+                        "truncated KITTI .bin: size " + std::to_string(bytes.size()) +
                             " bytes is not a multiple of 16 (float32 x y z intensity)");
-  const std::size_t num_points = static_cast<std::size_t>(size_bytes / kKittiPointBytes);
-  std::vector<float> buffer(num_points * 4);
-  std::ifstream in(path, std::ios::binary);
-  if (!in)
-    throw ScanReadError(path, "cannot open file for reading");
-  in.read(reinterpret_cast<char*>(buffer.data()),
-          static_cast<std::streamsize>(num_points * kKittiPointBytes));
-  if (in.gcount() != static_cast<std::streamsize>(num_points * kKittiPointBytes))
-    throw ScanReadError(path,
-                        "read only " + std::to_string(in.gcount()) + " of " +
-                            std::to_string(size_bytes) + " bytes");
+  const std::size_t num_points = bytes.size() / kKittiPointBytes;
   cloud.reserve(num_points);
   for (std::size_t i = 0; i < num_points; ++i) {
-    const float* v = &buffer[4 * i];
+    float v[4];
+    std::memcpy(v, bytes.data() + i * kKittiPointBytes, kKittiPointBytes);
     pushIfFinite(cloud, v[0], v[1], v[2], v[3], num_dropped);
   }
 }
@@ -369,17 +360,16 @@ readWholeFile(const std::string& path, std::uintmax_t size_bytes)
   return bytes;
 }
 
-/// Load a PCD or PLY file and convert it; \a times as in blobToCloud().
+/// Parse a PCD or PLY file's bytes and convert them; \a times as in blobToCloud().
 void
-readPclFile(const std::string& path,
-            const std::string& ext,
-            std::uintmax_t size_bytes,
-            pcl::PointCloud<pcl::PointXYZI>& cloud,
-            std::size_t& num_dropped,
-            PointTimes* times)
+readPclBytes(const std::string& path,
+             const std::string& ext,
+             const std::string& bytes,
+             pcl::PointCloud<pcl::PointXYZI>& cloud,
+             std::size_t& num_dropped,
+             PointTimes* times)
 {
   pcl::PCLPointCloud2 blob;
-  const std::string bytes = readWholeFile(path, size_bytes);
   if (ext == ".pcd")
     parsePcd(path, bytes, blob);
   else
@@ -396,6 +386,30 @@ readPclFile(const std::string& path,
 } // namespace
 
 pcl::PointCloud<pcl::PointXYZI>::Ptr
+scanFromBytes(const std::string& path,
+              const std::string& ext,
+              const std::string& bytes,
+              std::size_t* num_dropped_non_finite,
+              PointTimes* times)
+{
+  auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+  std::size_t num_dropped = 0;
+  if (ext == ".bin")
+    readKittiBin(path, bytes, *cloud, num_dropped);
+  else if (ext == ".pcd" || ext == ".ply")
+    readPclBytes(path, ext, bytes, *cloud, num_dropped, times);
+  else
+    throw ScanReadError(
+        path, "unsupported scan extension '" + ext + "' (expected .bin, .pcd or .ply)");
+  cloud->width = static_cast<std::uint32_t>(cloud->size());
+  cloud->height = 1;
+  cloud->is_dense = true;
+  if (num_dropped_non_finite)
+    *num_dropped_non_finite = num_dropped;
+  return cloud;
+}
+
+pcl::PointCloud<pcl::PointXYZI>::Ptr
 readScanAndTimes(const std::string& path,
                  std::size_t* num_dropped_non_finite,
                  PointTimes* times)
@@ -405,19 +419,8 @@ readScanAndTimes(const std::string& path,
     throw ScanReadError(
         path, "unsupported scan extension '" + ext + "' (expected .bin, .pcd or .ply)");
   const std::uintmax_t size_bytes = checkRegularNonEmptyFile(path);
-
-  auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
-  std::size_t num_dropped = 0;
-  if (ext == ".bin")
-    readKittiBin(path, size_bytes, *cloud, num_dropped);
-  else
-    readPclFile(path, ext, size_bytes, *cloud, num_dropped, times);
-  cloud->width = static_cast<std::uint32_t>(cloud->size());
-  cloud->height = 1;
-  cloud->is_dense = true;
-  if (num_dropped_non_finite)
-    *num_dropped_non_finite = num_dropped;
-  return cloud;
+  return scanFromBytes(path, ext, readWholeFile(path, size_bytes), num_dropped_non_finite,
+                       times);
 }
 
 } // namespace io_detail

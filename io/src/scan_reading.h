@@ -27,6 +27,16 @@ std::string lowerExtension(const std::filesystem::path& p);
 /// Whether \a ext (lower case) is a scan file's: .bin, .pcd or .ply.
 bool isScanExtension(const std::string& ext);
 
+/// A scan file's \a bytes parsed as its extension \a ext (".bin", ".pcd", ".ply")
+/// says; \a path only names it in errors. What readScanAndTimes() does after reading the
+/// file, and what the fuzz harnesses (fuzz/) call.
+/// \throws ScanReadError naming \a path
+pcl::PointCloud<pcl::PointXYZI>::Ptr scanFromBytes(const std::string& path,
+                                                   const std::string& ext,
+                                                   const std::string& bytes,
+                                                   std::size_t* num_dropped_non_finite,
+                                                   PointTimes* times);
+
 /// readScan(), and when \a times is not null the validated per-point times.
 pcl::PointCloud<pcl::PointXYZI>::Ptr readScanAndTimes(const std::string& path,
                                                       std::size_t* num_dropped_non_finite,

@@ -417,3 +417,45 @@ TEST(HostileTextFiles, ReadBoundedLineSplitsLikeGetline)
     lines.push_back(line);
   EXPECT_EQ(lines, (std::vector<std::string>{"a b", "", "last"}));
 }
+
+TEST(HostileTextFiles, RegressionFilesAreClearErrors)
+{
+  // Named <case>.<reader>.txt: each must give the reader's documented error (a
+  // std::runtime_error or std::invalid_argument), never a crash or another exception.
+  const fs::path dir =
+      fs::path(PCL_RAST_SOURCE_DIR) / "test" / "data" / "hostile" / "text";
+  ASSERT_TRUE(fs::is_directory(dir)) << dir;
+  std::size_t n = 0;
+  for (const fs::directory_entry& e : fs::directory_iterator(dir)) {
+    const std::string name = e.path().filename().string();
+    const std::string reader = fs::path(e.path().stem()).extension().string();
+    std::function<void()> read;
+    if (reader == ".poses")
+      read = [&] { pcl::rast::readTrajectory(e.path().string()); };
+    else if (reader == ".calib")
+      read = [&] { pcl::rast::readKittiCalibTr(e.path().string()); };
+    else if (reader == ".g2o")
+      read = [&] { pcl::rast::readG2o(e.path().string()); };
+    else if (reader == ".times")
+      read = [&] {
+        const fs::path seq = pcl_rast_test::makeTempDir("hostile_times");
+        fs::copy_file(e.path(), seq / "times.txt");
+        pcl::rast::writeKittiBin((seq / "000000.bin").string(), randomCloud(4, 1));
+        pcl::rast::writeKittiBin((seq / "000001.bin").string(), randomCloud(4, 2));
+        SequenceReader reader_of_times(seq.string());
+      };
+    else
+      continue;
+    ++n;
+    try {
+      read();
+      ADD_FAILURE() << name << " was read without an error";
+    } catch (const std::runtime_error& err) {
+      const std::string file = reader == ".times" ? "times.txt" : name;
+      EXPECT_NE(std::string(err.what()).find(file), std::string::npos)
+          << name << ": the error does not name the file: " << err.what();
+    } catch (const std::invalid_argument&) {
+    }
+  }
+  EXPECT_GE(n, 10u);
+}

@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# The test suite under the sanitizers (issue 12), as CI runs it after the README's tests:
+#   - an ASan + UBSan build runs the whole suite;
+#   - a TSan build runs the threaded SLAM tests (RastSlam.*, the pcl_rast_slam tool).
+# Every report halts its test (halt_on_error); the only suppressions are for the named
+# third-party libraries in scripts/sanitizers/*.supp.
+#
+#   scripts/run_sanitizers.sh [asan|tsan]...   (default: both)
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+kinds=("$@")
+[ ${#kinds[@]} -eq 0 ] && kinds=(asan tsan)
+supp="$root/scripts/sanitizers"
+jobs="$(nproc)"
+
+configure() { # build_dir flags
+  cmake -S "$root" -B "$1" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPCL_RAST_BUILD_TESTS=ON \
+    -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g -fno-omit-frame-pointer" \
+    -DPCL_RAST_TEST_OPTIMIZATION="-O1" \
+    -DCMAKE_CXX_FLAGS="$2" -DCMAKE_EXE_LINKER_FLAGS="$2" -DCMAKE_SHARED_LINKER_FLAGS="$2" \
+    > "$1.configure.log" 2>&1
+}
+
+for kind in "${kinds[@]}"; do
+  start=$(date +%s)
+  case "$kind" in
+  asan)
+    build="$root/build-asan"
+    configure "$build" "-fsanitize=address,undefined -fno-sanitize-recover=undefined"
+    cmake --build "$build" -j"$jobs" > "$build.build.log" 2>&1 ||
+      { tail -30 "$build.build.log"; exit 1; }
+    export ASAN_OPTIONS="halt_on_error=1:detect_leaks=1:abort_on_error=0:detect_odr_violation=0"
+    export LSAN_OPTIONS="suppressions=$supp/lsan.supp:print_suppressions=0"
+    export UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1:suppressions=$supp/ubsan.supp"
+    (cd "$build" && ctest -j"$jobs" --output-on-failure --timeout 1800)
+    unset ASAN_OPTIONS LSAN_OPTIONS UBSAN_OPTIONS
+    ;;
+  tsan)
+    build="$root/build-tsan"
+    configure "$build" "-fsanitize=thread"
+    targets=(slam_test_rast_slam slam_test_slam_tool slam_test_local_mapping pcl_rast_all_tools)
+    cmake --build "$build" -j"$jobs" --target "${targets[@]}" > "$build.build.log" 2>&1 ||
+      { tail -30 "$build.build.log"; exit 1; }
+    export TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$supp/tsan.supp"
+    (cd "$build" && for t in slam_test_rast_slam slam_test_slam_tool slam_test_local_mapping; do
+       "./test/$t" --gtest_brief=1 || exit 1
+     done)
+    unset TSAN_OPTIONS
+    ;;
+  *)
+    echo "run_sanitizers.sh: unknown kind '$kind' (asan, tsan)" >&2
+    exit 1
+    ;;
+  esac
+  echo "run_sanitizers.sh: $kind clean in $(( $(date +%s) - start )) s"
+done
