@@ -18,25 +18,25 @@ runs="${3:-20}"
 RANDOM="${4:-1}"
 tools="$build/tools"
 work="$(mktemp -d)"
-trap 'rm -rf "$work"' EXIT
+trap 'sleep 1; rm -rf "$work"' EXIT
 bad=0
 
 # Seconds (3 decimals) that a complete run takes, to spread the signals over it.
 timed_run() { # tool out
   local s e
   s=$(date +%s%N)
-  run_tool "$1" "$2" > "$work/first.log" 2>&1 || { cat "$work/first.log"; exit 2; }
+  (run_tool "$1" "$2") > "$work/first.log" 2>&1 || { cat "$work/first.log"; exit 2; }
   e=$(date +%s%N)
   echo $(( (e - s) / 1000000 ))
 }
 
-run_tool() { # tool out
+run_tool() { # tool out; execs: call it in a subshell or in the background
   case "$1" in
   pcl_rast_slam) exec_args=(-input "$scans" -output "$2" -software-render -quiet) ;;
   pcl_rast_odometry) exec_args=(-input "$scans" -output "$2") ;;
   pcl_rast_simulate) exec_args=(-path loop -frames 60 -output "$2") ;;
   esac
-  "$tools/$1" "${exec_args[@]}"
+  exec "$tools/$1" "${exec_args[@]}"
 }
 
 check_set() { # tool out
@@ -69,7 +69,7 @@ for tool in pcl_rast_slam pcl_rast_odometry pcl_rast_simulate; do
     *+*) kill -"$sig" "$pid" 2>/dev/null; sleep 0.02; kill -"$sig" "$pid" 2>/dev/null ;;
     *) kill -"$sig" "$pid" 2>/dev/null ;;
     esac
-    wait "$pid"
+    wait "$pid" 2>/dev/null
     rc=$?
     if verdict=$(check_set "$tool" "$out" 2>&1); then ok=ok; else ok=MIXED; bad=$((bad + 1)); fi
     printf '%-18s run %2d  %-9s at %5d ms  exit %3d  %-5s %s\n' "$tool" "$i" "$kind" "$delay_ms" \

@@ -103,6 +103,7 @@ run(int argc, char** argv)
               &params.dense.young_map_scans);
   if (!args.parse(argc, argv))
     return kExitOk;
+  installStopSignals(); // a stop before the first frame ends the run there
 
   // Validate everything before any work.
   if (first < 0 || stride < 1 || last < -1 || (last >= 0 && last < first))
@@ -181,7 +182,6 @@ run(int argc, char** argv)
   ProgressBar bar("Odometry", reader.size());
   std::exception_ptr run_error; // ends the run; the frames before it are written
   nlohmann::json skipped = nlohmann::json::array(); // scans that could not be read
-  installStopSignals();
   std::size_t stopped_at = reader.size();
   for (std::size_t i = 0; i < reader.size() && !run_error; ++i) {
     if (stopRequested()) {
@@ -235,6 +235,11 @@ run(int argc, char** argv)
       std::rethrow_exception(run_error); // nothing was processed: nothing to save
     std::fprintf(stderr, "\npcl_rast_odometry: error at frame %zu: %s\n", poses.size(),
                  error_message.c_str());
+  }
+  if (stopped_at == 0) {
+    std::fprintf(stderr, "pcl_rast_odometry: %s before the first scan; no output was written\n",
+                 stopSignalName());
+    return 128 + stopSignal();
   }
   if (num_tracked == 0 && !run_error) {
     // Identity poses for scans that were never read would pass for a result.

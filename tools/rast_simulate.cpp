@@ -124,6 +124,7 @@ run(int argc, char** argv)
   args.addInt("threads", "ray-casting threads (output does not depend on it)", &threads);
   if (!args.parse(argc, argv))
     return kExitOk;
+  installStopSignals(); // a stop before the first frame ends the run there
 
   if (traj.empty() == path.empty())
     throw std::invalid_argument("give exactly one of -traj FILE and -path TYPE");
@@ -206,7 +207,6 @@ run(int argc, char** argv)
                                 std::to_string(last) + " outside the " +
                                 std::to_string(n) + " poses");
 
-  installStopSignals();
   const auto t0 = std::chrono::steady_clock::now();
   pcl::rast::LidarSimulator sim(params, T_world_body, times_s);
   const auto t1 = std::chrono::steady_clock::now();
@@ -241,8 +241,8 @@ run(int argc, char** argv)
                written,
                ms / static_cast<double>(std::max<std::size_t>(written, 1)));
 
-  if (written == 0)
-    return kExitAlgorithmFailure; // stopped before the first frame: no sequence
+  if (written == 0) // stopped before the first frame: no sequence
+    return stopRequested() ? 128 + stopSignal() : kExitAlgorithmFailure;
   // The scene each written frame is in (DIR/scenes.txt, one name per line), and the
   // stretches on the console: per-scene figures need to know where each frame was.
   std::string scenes, stretches, previous;

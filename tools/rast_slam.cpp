@@ -348,6 +348,7 @@ run(int argc, char** argv)
   parser.addSwitch("quiet", "no progress bar", &quiet);
   if (!parser.parse(argc, argv))
     return pcl_rast_tools::kExitOk;
+  pcl_rast_tools::installStopSignals(); // a stop before the first frame ends the run there
 
   // ---- validate everything before any work ----
   if (first < 0 || stride < 1 || last < -1 || (last >= 0 && last < first))
@@ -466,7 +467,6 @@ run(int argc, char** argv)
       pcl_rast_tools::injectedFault({"tracking", "local_mapping", "loop_closing"});
 
   // ---- run ----
-  pcl_rast_tools::installStopSignals();
   const auto wall_start = std::chrono::steady_clock::now();
   rast::RastSlam slam(params);
   if (fault.active)
@@ -531,6 +531,11 @@ run(int argc, char** argv)
       std::rethrow_exception(run_error); // nothing was processed: nothing to save
     std::cerr << "\npcl_rast_slam: error: " << error_message << "\npcl_rast_slam: writing the "
               << slam.frames().size() << " frames processed before it\n";
+  }
+  if (pcl_rast_tools::stopRequested() && processed == 0) {
+    std::cerr << "pcl_rast_slam: " << pcl_rast_tools::stopSignalName()
+              << " before the first scan; no output was written\n";
+    return 128 + pcl_rast_tools::stopSignal();
   }
   std::size_t num_used = 0;
   for (const auto& f : slam.frames())
