@@ -9,6 +9,8 @@
 # Every crash, leak or timeout is copied to test/data/hostile/ (scan files) or
 # test/data/hostile/text/ (text files), where the regression tests read it, and makes
 # the script exit 1. Targets: pcd ply bin poses times calib g2o (default: all).
+# PCL_RAST_FUZZ_SKIP_BUILD=1 reuses the harnesses and seeds built before (to run two
+# instances side by side on different targets).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 seconds="${1:-60}"
@@ -20,6 +22,7 @@ work="$build/fuzz-work"
 data="$root/../shared/data"
 [ -d "$data" ] || { echo "fuzz.sh: $data not found: the seed corpus comes from it" >&2; exit 2; }
 
+if [ -z "${PCL_RAST_FUZZ_SKIP_BUILD:-}" ]; then
 CC=clang CXX=clang++ cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DPCL_RAST_BUILD_FUZZERS=ON -DPCL_RAST_BUILD_TESTS=OFF -DPCL_RAST_BUILD_TOOLS=OFF \
   -DPCL_RAST_UNITY_BUILD=ON \
@@ -28,10 +31,13 @@ CC=clang CXX=clang++ cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebI
   -DCMAKE_EXE_LINKER_FLAGS="-fsanitize=address,undefined" \
   -DCMAKE_SHARED_LINKER_FLAGS="-fsanitize=address,undefined" > "$build/configure.log" 2>&1
 cmake --build "$build" -j"$(nproc)" --target fuzz_seeds $(printf 'fuzz_%s ' "${targets[@]}") >/dev/null
+fi
 
 mkdir -p "$work"
-rm -rf "$work/seeds"
-ASAN_OPTIONS=detect_leaks=0 "$build/fuzz/fuzz_seeds" "$data" "$work/seeds" >/dev/null
+if [ ! -d "$work/seeds" ] || [ -z "${PCL_RAST_FUZZ_SKIP_BUILD:-}" ]; then
+  rm -rf "$work/seeds"
+  ASAN_OPTIONS=detect_leaks=0 "$build/fuzz/fuzz_seeds" "$data" "$work/seeds" >/dev/null
+fi
 
 status=0
 printf '%-6s %10s %8s %8s %8s\n' target execs/s corpus rss_mb findings
