@@ -50,11 +50,11 @@ for t in "${targets[@]}"; do
     "$build/fuzz/fuzz_$t" "$corpus" "$work/seeds/$t" -max_total_time="$seconds" \
     -rss_limit_mb=1024 -max_len=65536 -timeout=10 -print_final_stats=1 \
     -artifact_prefix="$artifacts/" > "$log" 2>&1 || true
-  execs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$log" | grep -o '[0-9]*$' || echo 0)
+  execs=$(grep -o 'stat::average_exec_per_sec: *[0-9]*' "$log" | grep -o '[0-9]*$' || echo 0)
   rss=$(grep -o 'stat::peak_rss_mb: *[0-9]*' "$log" | grep -o '[0-9]*$' || echo 0)
   files=$(find "$corpus" -type f | wc -l)
   findings=$(find "$artifacts" -type f | wc -l)
-  printf '%-6s %10s %8s %8s %8s\n' "$t" "$(( execs / (seconds > 0 ? seconds : 1) ))" "$files" "$rss" "$findings"
+  printf '%-6s %10s %8s %8s %8s\n' "$t" "$execs" "$files" "$rss" "$findings"
   if [ "$findings" -gt 0 ]; then
     status=1
     case "$t" in pcd|ply|bin) dest="$root/test/data/hostile"; ext=".$t" ;;

@@ -573,7 +573,8 @@ parsePly(const std::string& path, const std::string& bytes, pcl::PCLPointCloud2&
     parseAsciiPoints(lines, blob, vertex->count);
   } else {
     allocatePoints(lines, blob, vertex->count, available, step);
-    std::memcpy(blob.data.data(), bytes.data() + lines.offset(), blob.data.size());
+    if (!blob.data.empty()) // memcpy to the null data() of no vertices is undefined
+      std::memcpy(blob.data.data(), bytes.data() + lines.offset(), blob.data.size());
     if (format == "binary_big_endian")
       for (std::size_t i = 0; i < vertex->count; ++i)
         for (const pcl::PCLPointField& f : blob.fields) {

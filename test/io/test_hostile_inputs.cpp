@@ -336,10 +336,19 @@ TEST(HostileScans, RegressionFilesAreClearErrors)
   ASSERT_TRUE(fs::is_directory(dir)) << dir;
   std::size_t n = 0;
   for (const fs::directory_entry& e : fs::directory_iterator(dir)) {
-    if (e.path().extension() == ".md")
+    if (e.path().extension() == ".md" || e.is_directory())
       continue;
-    EXPECT_TRUE(rejected(e.path())) << e.path().filename();
     ++n;
+    if (e.path().filename().string().rfind("fuzz-", 0) == 0) {
+      // A fuzzer's finding crashed once; it may be a valid (say, empty) scan: it must
+      // now read or be a ScanReadError, and nothing else.
+      try {
+        readScan(e.path().string());
+      } catch (const ScanReadError&) {
+      }
+      continue;
+    }
+    EXPECT_TRUE(rejected(e.path())) << e.path().filename();
   }
   EXPECT_GE(n, 10u);
 }
