@@ -6,7 +6,6 @@
 #include <algorithm>
 #include <boost/crc.hpp>
 #include <cerrno>
-#include <chrono>
 #include <csignal>
 #include <cstdio>
 #include <cstring>
