@@ -52,21 +52,42 @@ stagingPid(const std::string& name)
   }
 }
 
-/// The files the output set in \a dir lists (none without a manifest).
+/// The "output_set" entry of dir/summary.json (run id, files with sizes and CRCs), or
+/// null with \a why set when there is none or it cannot be read.
+nlohmann::json
+readManifest(const fs::path& dir, std::string& why)
+{
+  nlohmann::json summary;
+  try {
+    std::ifstream in(dir / kSummary);
+    if (!in) {
+      why = "no summary.json";
+      return nullptr;
+    }
+    summary = nlohmann::json::parse(in);
+  } catch (const std::exception& e) {
+    why = std::string("summary.json does not parse: ") + e.what();
+    return nullptr;
+  }
+  if (!summary.contains("output_set") || !summary["output_set"].contains("files") ||
+      !summary["output_set"]["files"].is_array()) {
+    why = "summary.json lists no files (written before output sets)";
+    return nullptr;
+  }
+  return summary["output_set"];
+}
+
+/// The files the output set in \a dir lists (none without a readable manifest).
 std::vector<std::string>
 manifestNames(const fs::path& dir)
 {
+  std::string why;
+  const nlohmann::json manifest = readManifest(dir, why);
   std::vector<std::string> names;
-  try {
-    std::ifstream in(dir / kSummary);
-    if (!in)
-      return names;
-    const nlohmann::json summary = nlohmann::json::parse(in);
-    for (const nlohmann::json& f : summary.at("output_set").at("files"))
-      names.push_back(f.at("name").get<std::string>());
-  } catch (const std::exception&) {
-    names.clear(); // an older or damaged summary: nothing known to remove
-  }
+  if (!manifest.is_null())
+    for (const nlohmann::json& f : manifest["files"])
+      if (f.contains("name") && f["name"].is_string())
+        names.push_back(f["name"].get<std::string>());
   return names;
 }
 
@@ -181,25 +202,15 @@ OutputSetCheck
 checkOutputSet(const std::string& dir)
 {
   OutputSetCheck check;
-  nlohmann::json summary;
-  try {
-    std::ifstream in(fs::path(dir) / kSummary);
-    if (!in) {
-      check.problems.push_back("no summary.json");
-      return check;
-    }
-    summary = nlohmann::json::parse(in);
-  } catch (const std::exception& e) {
-    check.problems.push_back(std::string("summary.json does not parse: ") + e.what());
-    return check;
-  }
-  if (!summary.contains("output_set") || !summary["output_set"].contains("files")) {
-    check.problems.push_back("summary.json lists no files (written before output sets)");
+  std::string why;
+  const nlohmann::json manifest = readManifest(dir, why);
+  if (manifest.is_null()) {
+    check.problems.push_back(why);
     return check;
   }
   check.has_manifest = true;
-  check.run_id = summary["output_set"].value("run_id", "");
-  for (const nlohmann::json& f : summary["output_set"]["files"]) {
+  check.run_id = manifest.value("run_id", "");
+  for (const nlohmann::json& f : manifest["files"]) {
     const std::string name = f.value("name", "");
     const fs::path path = fs::path(dir) / name;
     std::error_code ec;
