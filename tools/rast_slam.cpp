@@ -537,10 +537,8 @@ run(int argc, char** argv)
               << " before the first scan; no output was written\n";
     return 128 + pcl_rast_tools::stopSignal();
   }
-  std::size_t num_used = 0;
-  for (const auto& f : slam.frames())
-    num_used += f.skipped ? 0 : 1;
-  if (num_used == 0 && !run_error) {
+  const rast::SlamStatistics counts = slam.statistics();
+  if (counts.frames == counts.skipped_frames && !run_error) {
     // Identity poses for scans that were never read would pass for a result.
     std::cerr << "pcl_rast_slam: error: none of the " << processed << " scans could be used ("
               << skipped.size() << " unreadable or empty"
