@@ -488,6 +488,8 @@ run(int argc, char** argv)
     while (!pcl_rast_tools::stopRequested() && prefetcher.next(item)) {
       if (item.ok) {
         if (item.frame.cloud->empty()) {
+          std::cerr << "\nframe " << item.sequence_index << ": skipped: " << item.path
+                    << ": empty scan\n";
           slam.addSkippedScan(item.sequence_index, item.timestamp_s, "empty scan", item.path);
           skipped.push_back({{"frame", item.sequence_index}, {"path", item.path},
                              {"reason", "empty scan"}});
@@ -501,6 +503,7 @@ run(int argc, char** argv)
         }
       }
       else {
+        std::cerr << "\nframe " << item.sequence_index << ": skipped: " << item.error << "\n";
         slam.addSkippedScan(item.sequence_index, item.timestamp_s, item.error, item.path);
         skipped.push_back(
             {{"frame", item.sequence_index}, {"path", item.path}, {"reason", item.error}});
