@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <fstream>
 #include <gtest/gtest.h>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <pcl/io/pose_io.h>
 #include <pcl/io/sequence_reader.h>
@@ -271,6 +272,99 @@ TEST_F(OutputSets, AFailedWriteKeepsThePreviousSetAndNamesTheCause)
   EXPECT_TRUE(check.complete);
   EXPECT_EQ(check.run_id, first_run);
   EXPECT_TRUE(noStaging(out));
+}
+
+/// A tmpfs of \a mib MiB mounted on \a dir for the test's lifetime; mounted() is false
+/// where mounting is not allowed (it needs root, or CAP_SYS_ADMIN).
+class SmallDisk
+{
+public:
+  SmallDisk(const fs::path& dir, int mib) : dir_(dir)
+  {
+    fs::create_directories(dir);
+    const std::string cmd = "mount -t tmpfs -o size=" + std::to_string(mib) + "m tmpfs " +
+                            quoted(dir) + " > /dev/null 2>&1";
+    mounted_ = std::system(cmd.c_str()) == 0;
+  }
+  ~SmallDisk()
+  {
+    if (mounted_)
+      std::system(("umount " + quoted(dir_) + " > /dev/null 2>&1").c_str());
+  }
+  SmallDisk(const SmallDisk&) = delete;
+  SmallDisk& operator=(const SmallDisk&) = delete;
+
+  bool mounted() const { return mounted_; }
+
+  /// Fill the disk with \a filler until at most \a keep_bytes are left.
+  void fill(const fs::path& filler, std::uintmax_t keep_bytes) const
+  {
+    const std::uintmax_t free = fs::space(dir_).available;
+    std::ofstream out(filler, std::ios::binary);
+    const std::string block(4096, 'f');
+    for (std::uintmax_t written = 0; written + keep_bytes < free && out; written += 4096)
+      out.write(block.data(), static_cast<std::streamsize>(block.size()));
+  }
+
+private:
+  fs::path dir_;
+  bool mounted_ = false;
+};
+
+/// A real full disk (a small tmpfs), at the first file and in the middle of the set:
+/// exit 2, "No space left on device", the previous set untouched and no staging left;
+/// once there is room again, the next run publishes.
+TEST_F(OutputSets, AFullDiskKeepsThePreviousSetAndNamesTheCause)
+{
+  const SmallDisk disk(dir_ / "disk", 16);
+  if (!disk.mounted())
+    GTEST_SKIP() << "mounting a small tmpfs needs root or CAP_SYS_ADMIN: the file-size "
+                    "limit test (AFailedWriteKeepsThePreviousSetAndNamesTheCause) stands in";
+  const fs::path filler = dir_ / "disk" / "filler";
+  struct Case
+  {
+    std::string tool;
+    // Left free: 0 fails the first file. 256 KiB lets pcl_rast_slam start and fills
+    // while it spills key-frames into the folder; 8 KiB lets pcl_rast_odometry write
+    // its first pose file and fails a later one.
+    std::uintmax_t keep_bytes;
+  };
+  for (const Case& c : {Case{"pcl_rast_slam", 0}, Case{"pcl_rast_slam", 256 << 10},
+                        Case{"pcl_rast_odometry", 0}, Case{"pcl_rast_odometry", 8 << 10}}) {
+    SCOPED_TRACE(c.tool + ", " + std::to_string(c.keep_bytes) + " bytes free");
+    const fs::path out = dir_ / "disk" / (c.tool + std::to_string(c.keep_bytes));
+    const auto args = [&](const std::string& extra) {
+      return c.tool == "pcl_rast_slam"
+                 ? slamArgs(out, extra)
+                 : "-input " + quoted(sequenceDir()) + " -output " + quoted(out) + " " + extra;
+    };
+    ASSERT_EQ(run(c.tool, args("")), 0) << readFile(log_);
+    const auto first = checkOutputSet(out.string());
+    ASSERT_TRUE(first.complete);
+    std::map<std::string, std::string> before;
+    for (const auto& e : fs::directory_iterator(out))
+      before[e.path().filename().string()] = readFile(e.path());
+
+    disk.fill(filler, c.keep_bytes);
+    EXPECT_EQ(run(c.tool, args("-stride 2")), 2) << readFile(log_);
+    EXPECT_NE(readFile(log_).find("No space left on device"), std::string::npos)
+        << readFile(log_);
+    const auto check = checkOutputSet(out.string());
+    EXPECT_TRUE(check.complete);
+    EXPECT_EQ(check.run_id, first.run_id);
+    EXPECT_TRUE(noStaging(out));
+    std::map<std::string, std::string> after;
+    for (const auto& e : fs::directory_iterator(out))
+      after[e.path().filename().string()] = readFile(e.path());
+    EXPECT_TRUE(after == before) << "the previous set changed";
+
+    fs::remove(filler);
+    ASSERT_EQ(run(c.tool, args("-stride 2")), 0) << readFile(log_);
+    const auto next = checkOutputSet(out.string());
+    EXPECT_TRUE(next.complete);
+    EXPECT_NE(next.run_id, first.run_id);
+    fs::remove_all(out); // room for the next case
+  }
 }
 
 TEST_F(OutputSets, NothingValidExitsThreeAndWritesNothing)
