@@ -21,7 +21,7 @@
 
 #include "cli.h"
 
-#include <chrono>
+#include <pcl/common/time.h>
 #include <cmath>
 #include <fstream>
 #include <iostream>
@@ -29,14 +29,6 @@
 #include <vector>
 
 namespace {
-
-using Clock = std::chrono::steady_clock;
-
-double
-msSince(Clock::time_point start)
-{
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
 
 struct Options
 {
@@ -63,10 +55,10 @@ struct FrameFeatures
 FrameFeatures
 processScan(const std::string& path, const Options& options)
 {
-  const auto start = Clock::now();
+  const pcl::StopWatch watch;
   std::size_t dropped = 0;
   const auto cloud = pcl::rast::readScan(path, &dropped);
-  std::cerr << "Loading " << path << " [done, " << static_cast<int>(msSince(start)) << " ms : "
+  std::cerr << "Loading " << path << " [done, " << static_cast<int>(watch.getTime()) << " ms : "
             << cloud->size() << " points]\n";
   FrameFeatures frame;
   // Reused across repeats, as a pipeline reuses them across frames.
@@ -76,7 +68,7 @@ processScan(const std::string& path, const Options& options)
   orb.setRasterParams(options.raster);
   for (int run = 0; run < options.repeat; ++run) { // repeat > 1: best-of timings
     pcl::PointCloud<pcl::PointXYZI>::ConstPtr input = cloud;
-    auto t0 = Clock::now();
+    pcl::StopWatch t0;
     if (!options.no_ground_removal) {
       ground.setInputCloud(cloud);
       pcl::rast::GroundRemovalResult<pcl::PointXYZI> result;
@@ -85,7 +77,7 @@ processScan(const std::string& path, const Options& options)
         std::cerr << "  " << result.message << "\n";
       input = result.non_ground;
     }
-    const double ground_ms = msSince(t0);
+    const double ground_ms = t0.getTime();
     orb.setInputCloud(input);
     pcl::rast::RasterFeatureSet features;
     const auto result = orb.compute(features);
@@ -223,7 +215,7 @@ run(int argc, char** argv)
   else {
     const FrameFeatures b = processScan(options.scan2, options);
     std::cout << "features2=" << b.features.size() << "\n";
-    const auto start = Clock::now();
+    const pcl::StopWatch watch;
     // The registration module's own chain, as the odometry uses it: Hamming matching
     // (mutual check + ratio test), then rigid RANSAC. Source = scan 2, target = scan 1.
     pcl::rast::HammingMatchParams match_params;
@@ -245,7 +237,7 @@ run(int argc, char** argv)
           is_inlier[m] = true;
       }
     }
-    const double match_ms = msSince(start);
+    const double match_ms = watch.getTime();
     const auto num_inliers = std::count(is_inlier.begin(), is_inlier.end(), true);
     const float yaw_deg = std::atan2(T(1, 0), T(0, 0)) * 180.0f / static_cast<float>(M_PI);
     std::cout << "matches=" << matches.size() << " inliers=" << num_inliers

@@ -4,7 +4,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
-#include <chrono>
+#include <pcl/common/time.h>
 #include <cstring>
 #include <sstream>
 #include <stdexcept>
@@ -14,14 +14,6 @@ namespace pcl {
 namespace rast {
 
 namespace {
-
-using Clock = std::chrono::steady_clock;
-
-double
-msSince(Clock::time_point start)
-{
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
 
 /// Keep at most \a max_per_cell keypoints per grid cell and \a max_total overall,
 /// filling round-robin: the best of every cell first, then the second best, ...
@@ -157,7 +149,7 @@ OrbRasterDetector::detect(const RasterGrid& raster, std::vector<RasterKeypoint>&
 
   // 1. Pad by the ORB border so keypoints near the image edge keep their descriptor,
   //    then Gaussian blur (paper: "First Gaussian blur is applied").
-  auto start = Clock::now();
+  pcl::StopWatch watch;
   const int pad = params_.patch_size_px + 1;
   const cv::Mat gray(raster.height(), raster.width(), CV_8UC1,
                      const_cast<std::uint8_t*>(raster.grayData()));
@@ -191,11 +183,11 @@ OrbRasterDetector::detect(const RasterGrid& raster, std::vector<RasterKeypoint>&
   keypoints = bucketKeypoints(keypoints, params_.grid_cell_px, params_.max_per_cell,
                               params_.max_features);
   result.num_bucketed = keypoints.size();
-  result.detect_ms = msSince(start);
+  result.detect_ms = watch.getTime();
 
   // 3. Descriptors (the keypoints keep their orientation), then the input point behind
   //    every keypoint's pixel.
-  start = Clock::now();
+  watch.reset();
   cv::Mat descriptors;
   if (!keypoints.empty())
     orb->compute(blurred, keypoints, descriptors);
@@ -221,7 +213,7 @@ OrbRasterDetector::detect(const RasterGrid& raster, std::vector<RasterKeypoint>&
                 32);
     out.push_back(lifted);
   }
-  result.describe_ms = msSince(start);
+  result.describe_ms = watch.getTime();
   result.num_features = out.size();
   return result;
 }

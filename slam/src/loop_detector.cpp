@@ -7,7 +7,6 @@
 
 #include <pcl/slam/loop_detector.h>
 
-#include <chrono>
 #include <cmath>
 #include <stdexcept>
 #include <utility>
@@ -17,8 +16,6 @@ namespace rast {
 
 namespace {
 
-using slam_detail::Clock;
-using slam_detail::msSince;
 
 } // namespace
 
@@ -110,17 +107,17 @@ LoopDetection
 LoopDetector::detect(const KeyFrame& query, const Pose3d& T_world_query) const
 {
   LoopDetection out;
-  const auto t0 = Clock::now();
+  const pcl::StopWatch t0;
   double query_travel_m = 0.0;
   const std::vector<RetrievedKeyFrame> retrieved =
       database_.retrieve(query, T_world_query, query_travel_m);
   for (const RetrievedKeyFrame& r : retrieved)
     out.candidates.push_back(r.candidate);
-  out.retrieval_ms = msSince(t0);
-  const auto t1 = Clock::now();
+  out.retrieval_ms = t0.getTime();
+  const pcl::StopWatch t1;
   verifyCandidates(query, T_world_query, query_travel_m, retrieved, out);
   out.num_rejected = static_cast<int>(out.verifications.size()) - out.num_accepted;
-  out.verify_ms = msSince(t1);
+  out.verify_ms = t1.getTime();
   return out;
 }
 

@@ -11,7 +11,6 @@
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <set>
@@ -23,9 +22,7 @@ namespace rast {
 
 namespace {
 
-using slam_detail::Clock;
 using slam_detail::kDegPerRad;
-using slam_detail::msSince;
 using slam_detail::rotationDeg;
 
 std::string
@@ -403,14 +400,14 @@ LoopDetector::verifyPair(const KeyFrame& query,
                          const GuessTolerance& tolerance,
                          const RetrievedKeyFrame* retrieved) const
 {
-  const auto t0 = Clock::now();
+  const pcl::StopWatch t0;
   LoopVerification v;
   v.query = query.id;
   v.candidate = candidate.id;
   auto reject = [&](const std::string& why) {
     v.accepted = false;
     v.reason = why;
-    v.verify_ms = msSince(t0);
+    v.verify_ms = t0.getTime();
     return v;
   };
   if (static_cast<int>(query.features.size()) < params_.min_inliers ||
@@ -439,7 +436,7 @@ LoopDetector::verifyPair(const KeyFrame& query,
     return reject(why);
 
   v.accepted = true;
-  v.verify_ms = msSince(t0);
+  v.verify_ms = t0.getTime();
   v.reason =
       format("accepted: %.0f inliers (ratio %.2f), dense overlap %.2f, rmse %.3f m",
              v.num_inliers,

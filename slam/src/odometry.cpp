@@ -379,7 +379,7 @@ Odometry::Impl::secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
                                  OdometryFrameResult& result,
                                  Twist& xi_sweep)
 {
-  const auto start = Clock::now();
+  const pcl::StopWatch watch;
   const Pose3d T_motion = T_world_last.inverse() * result.T_world_lidar;
   if (moved(T_motion_prior,
             T_motion,
@@ -407,7 +407,7 @@ Odometry::Impl::secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
       result.deskew_second_pass = true;
     }
   }
-  result.timings.deskew_ms += msSince(start);
+  result.timings.deskew_ms += watch.getTime();
 }
 
 void
@@ -416,13 +416,13 @@ Odometry::Impl::rebuildMapFromFirstScan(OdometryFrameResult& result)
   const double dt_first =
       (result.timestamp_s - t_first) * params.deskew.seconds_per_timestamp;
   if (result.refined && map_scans == 1 && dt_first > 1e-6 && dt_first < 1.0) {
-    const auto start = Clock::now();
+    const pcl::StopWatch watch;
     const Twist xi = logSE3(T_world_first.inverse() * result.T_world_lidar) / dt_first;
     map = VoxelPlaneMap(params.dense);
     map_scans = 0;
     insertIntoMap(*deskewCloud(*first_scan, first_times, xi, params.deskew.bins),
                   T_world_first);
-    result.timings.deskew_ms += msSince(start);
+    result.timings.deskew_ms += watch.getTime();
   }
   first_scan.reset();
   first_times.clear();
@@ -464,7 +464,7 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
                        const std::vector<float>& point_times_s)
 {
   impl_->checkIndex(frame_index);
-  const auto start = Clock::now();
+  const pcl::StopWatch watch;
   OdometryFrameResult result;
   result.frame_index = frame_index;
   result.timestamp_s = timestamp_s;
@@ -496,7 +496,7 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
         composePoses(impl_->T_world_keyframe.inverse(), result.T_world_lidar);
   }
   result.timings.total_ms =
-      std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+      watch.getTime();
   impl_->commitPose(result);
   return result;
 }

@@ -8,7 +8,6 @@
 #include "odometry_local_map.h"
 #include "stage_util.h"
 
-#include <chrono>
 #include <memory>
 #include <optional>
 #include <pcl/features/orb_raster_features.h>
@@ -30,8 +29,6 @@ using odometry_detail::VoxelPlaneMap;
 
 namespace odometry_detail {
 
-using slam_detail::Clock;
-using slam_detail::msSince;
 
 inline double
 angleDeg(const Pose3d& T)
@@ -203,7 +200,7 @@ struct Odometry::Impl
     explicit Frame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud)
         : input_ptr(cloud), input(*cloud)
     {}
-    const odometry_detail::Clock::time_point start = odometry_detail::Clock::now();
+    const pcl::StopWatch watch; ///< since the frame came in
     pcl::PointCloud<pcl::PointXYZI>::ConstPtr input_ptr;
     const pcl::PointCloud<pcl::PointXYZI>& input;
     Pose3d T_world_prior = Pose3d::Identity();        ///< constant-velocity prediction

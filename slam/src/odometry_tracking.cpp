@@ -65,14 +65,14 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   //     below uses compensated points: the non-ground points (raster, features) and the
   //     dense step's source points right away, the whole scan only when a key-frame or
   //     the local map keeps it (keptCloud).
-  auto start = Clock::now();
+  pcl::StopWatch watch;
   frame.dt = frameInterval(result.timestamp_s);
   if (auto times = sweepTimes(frame.input, point_times, frame.dt, result.deskew_times))
     frame.times.emplace(std::move(*times)); // (PointTimes refers to the cloud)
   frame.T_motion_prior = T_world_last.inverse() * frame.T_world_prior;
   if (frame.times && num_poses >= 2)
     frame.xi_sweep = logSE3(frame.T_motion_prior) / frame.dt;
-  result.timings.deskew_ms = msSince(start);
+  result.timings.deskew_ms = watch.getTime();
 
   extractFeatures(frame, result); // 1-3
 
@@ -86,11 +86,11 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     }
     result.status = TrackingStatus::kFirstFrame;
     result.message = "first frame: key-frame 0";
-    start = Clock::now();
+    watch.reset();
     result.keyframe = makeKeyFrame(result, std::move(*frame.features), frame.input);
     result.reference_keyframe = result.keyframe->id;
-    result.timings.keyframe_ms = msSince(start);
-    result.timings.total_ms = msSince(frame.start);
+    result.timings.keyframe_ms = watch.getTime();
+    result.timings.total_ms = frame.watch.getTime();
     return result;
   }
 
@@ -99,14 +99,14 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   // 5. Dense refinement against the local map, from the feature estimate; the
   //    feature-consistency check falls back to dense ICP from the prior, then to the
   //    prior itself.
-  start = Clock::now();
+  watch.reset();
   if (params.registration.refine || !feature_track.ok)
     makeDenseSource(frame, result);
   if (feature_track.ok)
     trackDense(frame, feature_track, result);
   else
     searchHypotheses(frame, feature_track, result);
-  result.timings.refine_ms = msSince(start);
+  result.timings.refine_ms = watch.getTime();
 
   // 5b. Second pass of the motion compensation with the estimated motion; 5c. the local
   //     map rebuilt from the first scan, compensated, once its motion is known.
@@ -122,7 +122,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     rebuildMapFromFirstScan(result);
 
   decideKeyFrame(frame, result); // 6
-  result.timings.total_ms = msSince(frame.start);
+  result.timings.total_ms = frame.watch.getTime();
   return result;
 }
 
@@ -132,27 +132,27 @@ Odometry::Impl::extractFeatures(Frame& frame, OdometryFrameResult& result)
   // 1. Ground removal (paper sec. 4), optionally levelling the non-ground cloud. On the
   //    raw scan: the sweep's motion moves ground points along the ground plane, and
   //    only the plane is kept.
-  auto start = Clock::now();
+  pcl::StopWatch watch;
   ground.setInputCloud(frame.input_ptr);
   pcl::Indices non_ground_indices;
   ground.filter(non_ground_indices);
   result.ground_found = ground.groundFound();
-  result.timings.ground_ms = msSince(start);
+  result.timings.ground_ms = watch.getTime();
   // The levelled frame, where the sensor is tilted (params.ground.level_cloud).
   const Eigen::Isometry3f T_level_lidar = ground.getLevellingTransform();
   const bool levelled = params.ground.level_cloud && result.ground_found &&
                         !T_level_lidar.isApprox(Eigen::Isometry3f::Identity());
   // The non-ground points, compensated (one copy of them either way), then levelled.
-  start = Clock::now();
+  watch.reset();
   pcl::PointCloud<pcl::PointXYZI>::Ptr non_ground;
   if (frame.xi_sweep) {
     non_ground =
         deskewIndices(frame.input, *frame.times, non_ground_indices, *frame.xi_sweep);
-    result.timings.deskew_ms += msSince(start);
+    result.timings.deskew_ms += watch.getTime();
   } else {
     non_ground = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
     pcl::copyPointCloud(frame.input, non_ground_indices, *non_ground);
-    result.timings.ground_ms += msSince(start);
+    result.timings.ground_ms += watch.getTime();
   }
   if (levelled)
     for (auto& p : non_ground->points)
@@ -192,7 +192,7 @@ Odometry::Impl::trackFeatures(const Frame& frame, OdometryFrameResult& result) c
 {
   // 4. Match the last key-frame's features (no spatial gate by default: large motion
   //    must track), rigid RANSAC, eq. 4 on the inliers (sec. 7.1-7.2).
-  const auto start = Clock::now();
+  const pcl::StopWatch watch;
   const RasterFeatureSet& features = *frame.features;
   const RasterFeatureSet& kf_features = keyframe->features;
   const Pose3d T_keyframe_prior = T_world_keyframe.inverse() * frame.T_world_prior;
@@ -250,7 +250,7 @@ Odometry::Impl::trackFeatures(const Frame& frame, OdometryFrameResult& result) c
       track.reference = "the key-frame (nearest-neighbour matches)";
     }
   }
-  result.timings.match_ms = msSince(start);
+  result.timings.match_ms = watch.getTime();
   return track;
 }
 
@@ -263,10 +263,10 @@ Odometry::Impl::makeDenseSource(Frame& frame, OdometryFrameResult& result) const
       voxelDownsampleIndices(frame.input, params.dense.source_voxel_size_m, in_range),
       static_cast<std::size_t>(params.dense.max_source_points));
   if (frame.xi_sweep) {
-    const auto t0 = Clock::now();
+    const pcl::StopWatch t0;
     frame.source = toPoints(
         *deskewIndices(frame.input, *frame.times, frame.source_indices, *frame.xi_sweep));
-    result.timings.deskew_ms += msSince(t0);
+    result.timings.deskew_ms += t0.getTime();
   } else {
     frame.source = toPoints(frame.input, frame.source_indices);
   }
@@ -385,13 +385,13 @@ Odometry::Impl::keptCloud(Frame& frame, OdometryFrameResult& result) const
 {
   // The whole compensated scan, made once and only when a key-frame or the map keeps it.
   if (!frame.kept_cloud) {
-    const auto t0 = Clock::now();
+    const pcl::StopWatch t0;
     frame.kept_cloud =
         frame.xi_sweep
             ? deskewCloud(
                   frame.input, frame.times->all(), *frame.xi_sweep, params.deskew.bins)
             : frame.input_ptr;
-    result.timings.deskew_ms += msSince(t0);
+    result.timings.deskew_ms += t0.getTime();
   }
   return *frame.kept_cloud;
 }
@@ -401,7 +401,7 @@ Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
 {
   // 6. Key-frame decision: the paper's rule (sec. 7.3) plus safety rules. The pose is
   //    final here; it is kept on SO(3) (single-precision steps add ~1e-7 each).
-  const auto start = Clock::now();
+  const pcl::StopWatch watch;
   if (!result.T_world_lidar.matrix().allFinite()) {
     // A degenerate solve must not reach the map and the pose graph: predict instead.
     result.T_world_lidar = frame.T_world_prior;
@@ -437,7 +437,7 @@ Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
   if (!result.keyframe && tracked && result.refined &&
       map_scans < params.dense.young_map_scans)
     insertIntoMap(keptCloud(frame, result), result.T_world_lidar);
-  result.timings.keyframe_ms = msSince(start);
+  result.timings.keyframe_ms = watch.getTime();
   if (tracked && !result.keyframe) {
     last_features = frame.features;
     T_world_last_features = result.T_world_lidar;

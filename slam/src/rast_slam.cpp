@@ -10,7 +10,6 @@
 #include <pcl/slam/rast_slam.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <condition_variable>
 #include <deque>
@@ -29,8 +28,6 @@ namespace {
 using loop_closing_detail::optimizeKeyFrameGraph;
 using slam_detail::WorkQueue;
 
-using slam_detail::Clock;
-using slam_detail::msSince;
 
 /// CPU time of the calling thread [ms].
 double
@@ -279,9 +276,9 @@ struct RastSlam::Impl
       cpu_ms["loop_detection"] += threadCpuMs() - cpu0;
       return added;
     }
-    const auto start = Clock::now();
+    const pcl::StopWatch watch;
     const LoopDetection detection = detector.detect(*kf, T_world_kf);
-    const double detect_ms = msSince(start);
+    const double detect_ms = watch.getTime();
     const LoopVerification* best = detection.best();
     {
       std::lock_guard<std::mutex> lock(stats_mutex);
@@ -322,24 +319,24 @@ struct RastSlam::Impl
   /// global bundle adjustment, the correction applied to the map, and the statistics.
   void optimizeGraph()
   {
-    const auto start = Clock::now();
+    const pcl::StopWatch watch;
     std::map<KeyFrameId, Pose3d> corrected;
     std::vector<LoopEdge> loops;
     std::vector<std::size_t> dropped;
     if (!optimizeKeyFrameGraph(*map, params, corrected, loops, dropped))
       return; // keep the old poses; the loop edge stays for the next attempt
     if (params.loop_closing.global_bundle_adjustment) {
-      const auto ba_start = Clock::now();
+      const pcl::StopWatch ba_watch;
       BundleAdjustmentParams ba = params.local_mapping.bundle_adjustment;
       ba.max_iterations = params.loop_closing.global_ba_max_iterations;
       globalBundleAdjustment(corrected, map->keyFrames(), map->allMapPoints(),
                              map->loopEdges(), params.loop_closing, ba);
       std::lock_guard<std::mutex> lock(stats_mutex);
-      global_ba_ms.push_back(msSince(ba_start));
+      global_ba_ms.push_back(ba_watch.getTime());
     }
     map->applyLoopCorrection(corrected); // the detector reads the corrected poses
     std::lock_guard<std::mutex> lock(stats_mutex);
-    pose_graph_ms.push_back(msSince(start));
+    pose_graph_ms.push_back(watch.getTime());
     inconsistent += dropped.size();
     for (std::size_t k : dropped) {
       const LoopEdge& e = loops[k];

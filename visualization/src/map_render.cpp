@@ -57,7 +57,7 @@ findExecutable(const std::string& name)
 int
 reapChild(pid_t pid, double grace_s)
 {
-  const auto start = Clock::now();
+  const pcl::StopWatch watch;
   int status = 0;
   while (true) {
     const pid_t r = ::waitpid(pid, &status, WNOHANG);
@@ -65,7 +65,7 @@ reapChild(pid_t pid, double grace_s)
       return status;
     if (r < 0 && errno != EINTR)
       return -1; // ECHILD: already reaped (e.g. SIGCHLD ignored)
-    if (secondsSince(start) > grace_s) {
+    if (watch.getTimeSeconds() > grace_s) {
       ::kill(pid, SIGKILL);
       while (::waitpid(pid, &status, 0) < 0)
         if (errno != EINTR)
@@ -96,10 +96,10 @@ std::string
 readLine(int fd, double timeout_s, bool& eof)
 {
   std::string text;
-  const auto start = Clock::now();
+  const pcl::StopWatch watch;
   eof = false;
   while (text.find('\n') == std::string::npos && !eof) {
-    const double left_s = timeout_s - secondsSince(start);
+    const double left_s = timeout_s - watch.getTimeSeconds();
     if (left_s <= 0.0)
       break;
     pollfd pfd{fd, POLLIN, 0};
@@ -285,10 +285,10 @@ renderMapTopDown(const MapRenderInput& input,
   if (png_path.empty())
     throw std::invalid_argument("renderMapTopDown: png_path is empty");
 
-  const auto start = Clock::now();
+  const pcl::StopWatch watch;
   MapRenderResult result;
   auto finish = [&](MapRenderResult& r) -> MapRenderResult {
-    r.render_time_ms = 1000.0 * secondsSince(start);
+    r.render_time_ms = 1000.0 * watch.getTimeSeconds();
     return r;
   };
   try {

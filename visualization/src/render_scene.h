@@ -8,7 +8,7 @@
 
 #include <opencv2/core.hpp>
 
-#include <chrono>
+#include <pcl/common/time.h>
 #include <string>
 #include <sys/types.h>
 #include <utility>
@@ -17,15 +17,6 @@
 namespace pcl {
 namespace rast {
 namespace render_detail {
-
-using Clock = std::chrono::steady_clock;
-
-inline double
-secondsSince(Clock::time_point start)
-{
-  return std::chrono::duration<double>(Clock::now() - start).count();
-}
-
 
 // ---------------------------------------------------------------------------
 // The scene: everything both backends draw, prepared once in the parent.

@@ -7,7 +7,6 @@
 #include <atomic>
 #include <cctype>
 #include <cerrno>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -359,10 +358,10 @@ bool
 readChildOutput(
     int data_fd, int err_fd, double timeout_s, std::string& data, std::string& errors)
 {
-  const auto start = Clock::now();
+  const pcl::StopWatch watch;
   bool data_open = true, err_open = true, timed_out = false;
   while (data_open) {
-    const double left_s = timeout_s - secondsSince(start);
+    const double left_s = timeout_s - watch.getTimeSeconds();
     if (left_s <= 0.0) {
       timed_out = true;
       break;
