@@ -1,4 +1,5 @@
 // pcl_rast_eval end to end: runs the built tool on generated pose files.
+#include "temp_cleanup.h"
 #include "test_data.h"
 
 #include <cmath>
@@ -37,6 +38,7 @@ runEval(const std::string& args)
   const auto err = fs::temp_directory_path() / "pcl_rast_test" /
                    ("eval_tool_stderr_" + std::to_string(::getpid()) + ".txt");
   fs::create_directories(err.parent_path());
+  pcl_rast_test::removeAtExit(err);
   const std::string command = "'" + tool + "' " + args + " 2>'" + err.string() + "'";
   FILE* pipe = popen(command.c_str(), "r");
   if (!pipe) {

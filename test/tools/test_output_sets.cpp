@@ -49,6 +49,7 @@ longSequenceDir()
                        ("output_sets_long_" + std::to_string(::getpid()));
     fs::remove_all(d);
     fs::create_directories(d);
+    pcl_rast_test::removeAtExit(d);
     for (int i = 0; i < 480; ++i) {
       const int k = i % 80 < 40 ? i % 40 : 79 - i % 80;
       char from[16], to[16];
