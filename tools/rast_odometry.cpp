@@ -101,6 +101,10 @@ run(int argc, char** argv)
   args.addInt("young-map-scans",
               "every tracked scan joins the local map while it holds fewer (1: key-frames only)",
               &params.dense.young_map_scans);
+  args.addDouble("degeneracy-support",
+                 "tunnels, corridors: a direction needs this many points on surfaces "
+                 "facing along it, else the prior keeps it (0: off; doc/odometry.md)",
+                 &params.dense.degeneracy_min_support);
   if (!args.parse(argc, argv))
     return kExitOk;
   installStopSignals(); // a stop before the first frame ends the run there
@@ -129,6 +133,8 @@ run(int argc, char** argv)
       p.dense.max_source_points = cli_params.dense.max_source_points;
     if (args.given("young-map-scans"))
       p.dense.young_map_scans = cli_params.dense.young_map_scans;
+    if (args.given("degeneracy-support"))
+      p.dense.degeneracy_min_support = cli_params.dense.degeneracy_min_support;
     p.registration.refine = !no_refine;
     if (no_loose_rematch)
       p.loose_rematch = false;

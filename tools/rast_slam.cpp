@@ -299,6 +299,7 @@ run(int argc, char** argv)
   bool no_loop = !defaults.loop_closing.enable;
   bool no_revisit_culling = !defaults.loop_closing.cull_revisits;
   int young_map_scans = defaults.odometry.dense.young_map_scans;
+  double degeneracy_support = defaults.odometry.dense.degeneracy_min_support;
   bool no_ba = false;
   bool ba = false;
   bool global_ba = defaults.loop_closing.global_bundle_adjustment;
@@ -342,6 +343,11 @@ run(int argc, char** argv)
                 "tracking: every scan joins the local map while it holds fewer (1: key-frames "
                 "only; see doc/odometry.md)",
                 &young_map_scans);
+  parser.addDouble("degeneracy-support",
+                   "tracking in tunnels, corridors: a direction needs this many points on "
+                   "surfaces facing along it, else the prior keeps it (0: off; "
+                   "doc/odometry.md)",
+                   &degeneracy_support);
   parser.addDouble("map-leaf", "voxel size of map.pcd [m]", &map_leaf_m);
   parser.addSwitch("software-render", "render.png with OpenCV instead of VTK (faster)",
                    &software_render);
@@ -358,6 +364,9 @@ run(int argc, char** argv)
   if (young_map_scans < 1)
     throw std::invalid_argument("-young-map-scans must be >= 1, got " +
                                 std::to_string(young_map_scans));
+  if (!(degeneracy_support >= 0.0) || !std::isfinite(degeneracy_support))
+    throw std::invalid_argument("-degeneracy-support must be finite and >= 0, got " +
+                                std::to_string(degeneracy_support));
   pcl_rast_tools::checkDeskewFlags(deskew);
   if (!(map_leaf_m > 0.0))
     throw std::invalid_argument("-map-leaf must be > 0, got " + std::to_string(map_leaf_m));
@@ -411,6 +420,8 @@ run(int argc, char** argv)
             << "; " << deskew_timing << ")\n";
   if (parser.given("young-map-scans"))
     params.odometry.dense.young_map_scans = young_map_scans;
+  if (parser.given("degeneracy-support"))
+    params.odometry.dense.degeneracy_min_support = degeneracy_support;
   if (!params.isValid(&why))
     throw std::logic_error("sensor preset made invalid parameters: " + why);
 
@@ -683,6 +694,7 @@ run(int argc, char** argv)
                        {"loop_closure", params.loop_closing.enable},
                        {"revisit_culling", params.loop_closing.cull_revisits},
                        {"young_map_scans", params.odometry.dense.young_map_scans},
+                       {"degeneracy_support", params.odometry.dense.degeneracy_min_support},
                        {"local_ba", params.local_mapping.enable_bundle_adjustment},
                        {"global_ba", params.loop_closing.global_bundle_adjustment},
                        {"map_leaf_m", map_leaf_m},

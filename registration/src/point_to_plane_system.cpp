@@ -3,6 +3,7 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
+#include <algorithm>
 #include <pcl/registration/point_to_plane_system.h>
 
 namespace pcl {
@@ -20,23 +21,42 @@ PointToPlaneSystem::solve(Vector6d& dx) const
 
 PointToPlaneSystem::Step
 PointToPlaneSystem::solveDegeneracyAware(double min_ratio,
-                                         const Vector6d* to_anchor) const
+                                         const Vector6d* to_anchor,
+                                         double min_support,
+                                         double min_derivative) const
 {
+  const bool support_test = min_support > 0.0;
+  if (support_test && !keep_rows_)
+    throw std::logic_error(
+        "PointToPlaneSystem::solveDegeneracyAware: a support test needs keepRows(true)");
   Step step;
   const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(H_);
   const double threshold = min_ratio * sum_w_;
+  bool constrained[6];
   for (int k = 0; k < 6; ++k) {
     const double lambda = eig.eigenvalues()(k);
-    if (!(lambda > threshold)) {
+    const Vector6d v = eig.eigenvectors().col(k);
+    constrained[k] = lambda > threshold;
+    // Translation-dominant directions only: a rotation's rows gain |lever x n| / L
+    // from every far point, so its support does not tell noise from structure.
+    if (constrained[k] && support_test && v.tail<3>().squaredNorm() >= 0.5) {
+      double support = 0.0;
+      for (const Row& row : rows_)
+        if (std::abs(row.J.dot(v)) >= min_derivative)
+          support += row.w;
+      step.least_support =
+          step.least_support < 0.0 ? support : std::min(step.least_support, support);
+      constrained[k] = support >= min_support;
+    }
+    if (!constrained[k]) {
       ++step.degenerate_directions;
       continue;
     }
-    const Vector6d v = eig.eigenvectors().col(k);
     step.dx -= v * (v.dot(g_) / lambda);
   }
   if (step.degenerate_directions > 0 && to_anchor)
     for (int k = 0; k < 6; ++k)
-      if (!(eig.eigenvalues()(k) > threshold)) {
+      if (!constrained[k]) {
         const Vector6d v = eig.eigenvectors().col(k);
         step.dx += v * v.dot(*to_anchor);
       }

@@ -90,6 +90,12 @@ DenseTrackingParams::isValid(std::string* why) const
     reason = "convergence thresholds must be >= 0";
   else if (!(degeneracy_min_ratio >= 0.0 && degeneracy_min_ratio < 1.0))
     reason = "degeneracy_min_ratio must be in [0, 1)";
+  else if (!(degeneracy_min_support >= 0.0) || !std::isfinite(degeneracy_min_support))
+    reason = "degeneracy_min_support must be finite and >= 0, got " +
+             std::to_string(degeneracy_min_support);
+  else if (!(degeneracy_support_derivative > 0.0 && degeneracy_support_derivative <= 1.0))
+    reason = "degeneracy_support_derivative must be in (0, 1], got " +
+             std::to_string(degeneracy_support_derivative);
   else if (min_correspondences < 6)
     reason = "min_correspondences must be >= 6";
   else if (!finitePositive(max_correction_m) || !finitePositive(max_correction_deg))

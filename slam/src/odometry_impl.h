@@ -239,10 +239,13 @@ struct Odometry::Impl
   /// The voxelized, subsampled and compensated source points of the dense step.
   void makeDenseSource(Frame& frame, OdometryFrameResult& result) const;
   /// Step 5 with features: dense refinement from their estimate, anchored to them
-  /// (strong) or to the prior (weak), and the two cross-checks.
+  /// (strong, unless far from the prior where the scan is degenerate) or to the prior
+  /// (weak), and the two cross-checks.
   void trackDense(const Frame& frame,
                   const FeatureTrack& track,
                   OdometryFrameResult& result) const;
+  /// Within prior_gate_m and prior_gate_deg of the frame's constant-velocity prior.
+  bool nearPrior(const Frame& frame, const Pose3d& T_world_lidar) const;
   /// Weak features: a second dense fit from their planar part or the prior, and the
   /// prior's fit where the scan cannot tell it from theirs.
   void checkWeakFeatures(const Frame& frame,

@@ -241,11 +241,13 @@ linearise(const Points3f& source,
           const Eigen::Matrix3d& R,
           const Eigen::Vector3d& t,
           double scale_m,
-          double max_distance_m)
+          double max_distance_m,
+          bool keep_rows)
 {
   // r = n . (q - c), q = R p + t; perturbation about the sensor position:
   // R <- Exp(omega) R, t <- t + dt, so the lever of q is q - t.
   Linearisation l;
+  l.system.keepRows(keep_rows);
   const Eigen::Matrix3f R_f = R.cast<float>();
   const Eigen::Vector3f t_f = t.cast<float>();
   Eigen::Vector3f c, n;
@@ -290,6 +292,9 @@ finish(DenseResult& result,
                    std::to_string(result.num_source_points) + " paired, rmse " +
                    std::to_string(result.rmse_m) + " m" + ", weakest direction " +
                    std::to_string(result.weakest_ratio) + " of the weight" +
+                   (result.least_support >= 0.0
+                        ? ", least support " + std::to_string(result.least_support)
+                        : std::string()) +
                    (result.degenerate_directions > 0
                         ? ", " + std::to_string(result.degenerate_directions) +
                               " degenerate direction(s) kept at the guess"
@@ -324,7 +329,8 @@ registerToMap(const Points3f& source,
     const double scale_m =
         std::max(params.min_kernel_scale_m, max_scale_m * std::pow(0.5, iteration));
     const Linearisation l =
-        linearise(source, map, R, t, scale_m, params.max_correspondence_distance_m);
+        linearise(source, map, R, t, scale_m, params.max_correspondence_distance_m,
+                  params.degeneracy_min_support > 0.0);
     result.iterations = iteration + 1;
     result.num_correspondences = l.paired;
     result.rmse_m = l.inliers > 0 ? std::sqrt(l.sum_sq / l.inliers) : 0.0;
@@ -343,10 +349,14 @@ registerToMap(const Points3f& source,
     if (options.T_world_anchor)
       to_anchor = l.system.tangent(T_now, *options.T_world_anchor);
     const PointToPlaneSystem::Step step = l.system.solveDegeneracyAware(
-        params.degeneracy_min_ratio, options.T_world_anchor ? &to_anchor : nullptr);
+        params.degeneracy_min_ratio,
+        options.T_world_anchor ? &to_anchor : nullptr,
+        params.degeneracy_min_support,
+        params.degeneracy_support_derivative);
     const Vector6d& dx = step.dx;
     result.degenerate_directions = step.degenerate_directions;
     result.weakest_ratio = step.weakest_ratio;
+    result.least_support = step.least_support;
     result.information = step.information;
     if (!dx.allFinite()) {
       result.message = "dense: non-finite update";

@@ -111,6 +111,8 @@ struct DenseResult
   /// The smallest eigenvalue of the normal equations over the total weight (the
   /// direction the scan constrains least).
   double weakest_ratio = 0.0;
+  /// Least support of a direction that passed the eigenvalue test (-1: no test).
+  double least_support = -1.0;
   std::string message;
 };
 

@@ -287,10 +287,26 @@ Odometry::Impl::trackDense(const Frame& frame,
   // Along the directions the scan does not constrain (a corridor's axis, an open field's
   // x, y and yaw) strong features set the pose; weak ones (a few posts of a guard rail,
   // a passing car) do not, the constant-velocity prior does.
-  const bool strong = inliers >= params.strong_feature_inliers;
+  bool strong = inliers >= params.strong_feature_inliers;
   const Pose3d& T_world_anchor = strong ? track.T_world_features : frame.T_world_prior;
   DenseResult dense = registerToMap(
       frame.source, map, track.T_world_features, params.dense, {0.0, &T_world_anchor});
+  if (strong && velocity_tracked && dense.success && dense.degenerate_directions > 0 &&
+      !nearPrior(frame, track.T_world_features)) {
+    // Strong features far from a tracked prior, and the scan cannot confirm them along
+    // some direction: nothing tells a large motion there from keypoints that move with
+    // the sensor (a tunnel's walls, sampled the same way in every scan, give "no motion"
+    // with dozens of inliers). The prior keeps that direction. (Without a tracked
+    // velocity the prior is no motion at all, and the features stand.)
+    strong = false;
+    dense = registerToMap(frame.source,
+                          map,
+                          track.T_world_features,
+                          params.dense,
+                          {0.0, &frame.T_world_prior});
+    result.degraded = true;
+    result.message += "; far from the prior along a direction the scan does not constrain";
+  }
   if (!strong)
     checkWeakFeatures(frame, track, dense, result);
   keepDenseStats(dense, result);
@@ -321,6 +337,14 @@ Odometry::Impl::trackDense(const Frame& frame,
   }
 }
 
+bool
+Odometry::Impl::nearPrior(const Frame& frame, const Pose3d& T_world_lidar) const
+{
+  const Pose3d diff = frame.T_world_prior.inverse() * T_world_lidar;
+  return diff.translation().norm() <= params.prior_gate_m &&
+         angleDeg(diff) <= params.prior_gate_deg;
+}
+
 void
 Odometry::Impl::checkWeakFeatures(const Frame& frame,
                                   const FeatureTrack& track,
@@ -334,9 +358,7 @@ Odometry::Impl::checkWeakFeatures(const Frame& frame,
   // level mount) or from the prior itself; the better paired one wins.
   const Pose3d& T_world_prior = frame.T_world_prior;
   const DenseOptions anchored{0.0, &T_world_prior};
-  const Pose3d prior_diff = T_world_prior.inverse() * track.T_world_features;
-  const bool near_prior = prior_diff.translation().norm() <= params.prior_gate_m &&
-                          angleDeg(prior_diff) <= params.prior_gate_deg;
+  const bool near_prior = nearPrior(frame, track.T_world_features);
   const bool second_from_features = near_prior && !params.ground.level_cloud;
   const Pose3d T_second =
       second_from_features

@@ -165,6 +165,60 @@ TEST(PointToPlaneSystem, GroundOnlyLeavesThreeDirectionsAtTheStartOrTheAnchor)
   EXPECT_NEAR(anchored.dx(5), -motion(5), 1e-6);
 }
 
+/// A corridor along x: ground, and two walls whose normals lean up to +-10 deg along
+/// the corridor (normals fitted to noisy points), plus \a fixtures points on surfaces
+/// that face along it. The residuals are those of a small motion along x.
+PointToPlaneSystem
+corridorSystem(int fixtures, bool keep_rows)
+{
+  PointToPlaneSystem system(10.0);
+  system.keepRows(keep_rows);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> along(-30.0, 30.0), up(-1.5, 3.0), lean(-0.17, 0.17);
+  const Eigen::Vector3d dt(0.2, 0.0, 0.0);
+  auto add = [&](const Eigen::Vector3d& q, const Eigen::Vector3d& n) {
+    system.addPointToPlane(q, n, n.dot(dt), 1.0);
+  };
+  for (int i = 0; i < 600; ++i) {
+    const double x = along(rng);
+    if (i % 3 == 0) {
+      add({x, 0.1 * x, -1.7}, Eigen::Vector3d::UnitZ());
+      continue;
+    }
+    const double side = i % 3 == 1 ? 1.0 : -1.0;
+    add({x, 4.0 * side, up(rng)}, Eigen::Vector3d(lean(rng), -side, 0.0).normalized());
+  }
+  for (int i = 0; i < fixtures; ++i)
+    add({12.0, 3.5, 0.5 + 0.01 * i}, -Eigen::Vector3d::UnitX());
+  return system;
+}
+
+TEST(PointToPlaneSystem, SupportTestFlagsADirectionOnlyLeaningNormalsConstrain)
+{
+  const PointToPlaneSystem walls = corridorSystem(0, true);
+  // The leaning normals pass the eigenvalue test along the corridor ...
+  const PointToPlaneSystem::Step plain = walls.solveDegeneracyAware(0.003);
+  EXPECT_EQ(plain.degenerate_directions, 0);
+  EXPECT_LT(plain.least_support, 0.0); // no support test
+  // ... but no point faces along it: the support test keeps the start there.
+  const PointToPlaneSystem::Step tested = walls.solveDegeneracyAware(0.003, nullptr, 10.0, 0.3);
+  EXPECT_EQ(tested.degenerate_directions, 1);
+  EXPECT_GE(tested.least_support, 0.0);
+  EXPECT_LT(tested.least_support, 10.0);
+  EXPECT_NEAR(tested.dx(3), 0.0, 0.02);
+  EXPECT_NEAR(tested.dx(5), 0.0, 1e-4);
+  // 20 points on a fixture that faces along it support it: the motion is undone.
+  const PointToPlaneSystem fixture = corridorSystem(20, true);
+  const PointToPlaneSystem::Step supported =
+      fixture.solveDegeneracyAware(0.003, nullptr, 10.0, 0.3);
+  EXPECT_EQ(supported.degenerate_directions, 0);
+  EXPECT_GE(supported.least_support, 10.0);
+  EXPECT_NEAR(supported.dx(3), -0.2, 1e-6);
+  // A support test needs the rows.
+  EXPECT_THROW(corridorSystem(0, false).solveDegeneracyAware(0.003, nullptr, 10.0),
+               std::logic_error);
+}
+
 TEST(PointToPlaneSystem, TangentScalesRotationByTheLength)
 {
   Eigen::Isometry3d from = Eigen::Isometry3d::Identity();

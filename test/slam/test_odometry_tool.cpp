@@ -185,6 +185,11 @@ TEST_F(OdometryTool, BadArgumentsExitOneBeforeAnyWork)
   EXPECT_NE(readAll(log_).find("-deskew-reference must be within +-360 deg, got 400"),
             std::string::npos)
       << readAll(log_);
+  EXPECT_EQ(runOdometry("-input . -output '" + out.string() + "' -degeneracy-support -1", log_),
+            1);
+  EXPECT_NE(readAll(log_).find("degeneracy_min_support must be finite and >= 0, got -1"),
+            std::string::npos)
+      << readAll(log_);
   EXPECT_FALSE(fs::exists(out)) << "bad arguments must fail before any work";
   EXPECT_EQ(runOdometry("-h", log_), 0);
   EXPECT_NE(readAll(log_).find("-keyframe-min-frames"), std::string::npos);

@@ -149,6 +149,13 @@ TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
                     log_),
             1);
   EXPECT_NE(readFile(log_).find("-young-map-scans must be >= 1, got 0"), std::string::npos);
+  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + dir_.string() +
+                        "/o' -degeneracy-support -2",
+                    log_),
+            1);
+  EXPECT_NE(readFile(log_).find("-degeneracy-support must be finite and >= 0, got -2"),
+            std::string::npos)
+      << readFile(log_);
   EXPECT_FALSE(std::filesystem::exists(dir_ / "o" / "summary.json")) << "no work before the check";
   EXPECT_EQ(runTool("-h", log_), 0);
   EXPECT_NE(readFile(log_).find("-map-leaf"), std::string::npos);

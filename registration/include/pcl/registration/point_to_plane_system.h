@@ -11,6 +11,7 @@
 #include <cmath>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace pcl {
 namespace rast {
@@ -86,7 +87,13 @@ public:
     H_.noalias() += w * J * J.transpose();
     g_.noalias() += w * residual * J;
     sum_w_ += w;
+    if (keep_rows_)
+      rows_.push_back({J, w});
   }
+
+  /// \brief Keep the point-to-plane rows (J, w) added from now on, for the support
+  /// test of solveDegeneracyAware. Plane-to-plane rows are not kept.
+  void keepRows(bool keep) { keep_rows_ = keep; }
 
   /// \brief Plane-to-plane (GICP) residual e = q - c with 3x3 \a information, weight \a
   /// w: de/d[omega, dt] = [-[lever]x, I].
@@ -116,6 +123,9 @@ public:
     int degenerate_directions = 0; ///< eigen-directions not updated
     /// The smallest eigenvalue of H over the total weight.
     double weakest_ratio = 0.0;
+    /// With a support test: the least support of a direction that passed the
+    /// eigenvalue test (see solveDegeneracyAware); -1 without one.
+    double least_support = -1.0;
     /// H per unit weight, H / sum(w): delta^T information delta is the mean squared
     /// residual a displacement delta adds.
     Matrix6d information = Matrix6d::Zero();
@@ -126,7 +136,20 @@ public:
   /// that an unconstrained direction keeps its start instead of following noise. With
   /// \a to_anchor (the displacement to an anchor pose, in this tangent), the step moves
   /// to the anchor along those directions instead.
-  Step solveDegeneracyAware(double min_ratio, const Vector6d* to_anchor = nullptr) const;
+  ///
+  /// With \a min_support > 0 (rows kept, keepRows), a direction v that passes the
+  /// eigenvalue test must also be supported: the weight of the rows whose residual
+  /// changes by at least \a min_derivative per unit step along v (|J . v|, in metres
+  /// per metre of the tangent) must reach \a min_support. Otherwise it is degenerate as
+  /// well. Many rows that each change little along v (a tunnel's walls, whose normals
+  /// fitted to noisy points lean a few degrees along the road) add up to a fair
+  /// eigenvalue but do not fix the motion; a few surfaces that face along v (a post, a
+  /// cabinet's side) do. This is the localizability idea of X-ICP (Tuna et al., 2023),
+  /// reduced to a count. \throws std::logic_error for a support test without kept rows.
+  Step solveDegeneracyAware(double min_ratio,
+                            const Vector6d* to_anchor = nullptr,
+                            double min_support = 0.0,
+                            double min_derivative = 0.3) const;
 
   /// \brief The displacement from \a from to \a to in this tangent: omega * L
   /// (R_to = Exp(omega) R_from), then t_to - t_from.
@@ -141,6 +164,13 @@ private:
   Matrix6d H_ = Matrix6d::Zero();
   Vector6d g_ = Vector6d::Zero();
   double sum_w_ = 0.0;
+  struct Row
+  {
+    Vector6d J;
+    double w;
+  };
+  bool keep_rows_ = false;
+  std::vector<Row> rows_;
 };
 
 } // namespace rast

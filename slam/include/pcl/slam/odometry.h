@@ -171,6 +171,14 @@ struct DenseTrackingParams
   /// not applied along it (the initial guess is kept there, e.g. x/y/yaw on an open
   /// field).
   double degeneracy_min_ratio = 0.003;
+  /// A direction that passes that test must also be supported: the robust weight of
+  /// the points whose residual changes by at least degeneracy_support_derivative per
+  /// metre along it (surfaces that face along it) must reach this; otherwise it is
+  /// degenerate too. 0 disables the test. Noisy normals of long walls give a tunnel's
+  /// axis a fair eigenvalue, but only a few fixtures face along it.
+  double degeneracy_min_support = 0.0;
+  /// |d residual / d step| [m/m] from which a point supports a direction.
+  double degeneracy_support_derivative = 0.3;
   /// Fewer paired source points than this: failure.
   int min_correspondences = 100;
   /// Failure when the result moved farther than this from its initial guess [m] ...
