@@ -137,14 +137,14 @@ public:
   /// \a to_anchor (the displacement to an anchor pose, in this tangent), the step moves
   /// to the anchor along those directions instead.
   ///
-  /// With \a min_support > 0 (rows kept, keepRows), a direction v that passes the
-  /// eigenvalue test must also be supported: the weight of the rows whose residual
-  /// changes by at least \a min_derivative per unit step along v (|J . v|, in metres
-  /// per metre of the tangent) must reach \a min_support. Otherwise it is degenerate as
-  /// well. Many rows that each change little along v (a tunnel's walls, whose normals
-  /// fitted to noisy points lean a few degrees along the road) add up to a fair
-  /// eigenvalue but do not fix the motion; a few surfaces that face along v (a post, a
-  /// cabinet's side) do. This is the localizability idea of X-ICP (Tuna et al., 2023),
+  /// With \a min_support > 0 (rows kept, keepRows), a translation-dominant direction v
+  /// (|v_t|^2 >= 1/2) that passes the eigenvalue test must also be supported: the
+  /// weight of the rows whose residual changes by at least \a min_derivative per unit
+  /// step along v (|J . v|, in metres per metre of the tangent) must reach \a
+  /// min_support. Otherwise it is degenerate as well. Many rows that each change little
+  /// along v (a tunnel's walls, whose normals fitted to noisy points lean a few degrees
+  /// along the road) add up to a fair eigenvalue but do not fix the motion; a few
+  /// surfaces that face along v (a post, a cabinet's side) do. This is the localizability idea of X-ICP (Tuna et al., 2023),
   /// reduced to a count. \throws std::logic_error for a support test without kept rows.
   Step solveDegeneracyAware(double min_ratio,
                             const Vector6d* to_anchor = nullptr,
