@@ -23,6 +23,7 @@ data="$root/../shared/data"
 [ -d "$data" ] || { echo "fuzz.sh: $data not found: the seed corpus comes from it" >&2; exit 2; }
 
 if [ -z "${PCL_RAST_FUZZ_SKIP_BUILD:-}" ]; then
+mkdir -p "$build"
 CC=clang CXX=clang++ cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DPCL_RAST_BUILD_FUZZERS=ON -DPCL_RAST_BUILD_TESTS=OFF -DPCL_RAST_BUILD_TOOLS=OFF \
   -DPCL_RAST_UNITY_BUILD=ON \
