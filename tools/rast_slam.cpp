@@ -20,6 +20,7 @@
 #include <pcl/io/pose_io.h>
 #include <pcl/slam/rast_slam.h>
 #include <pcl/io/sequence_reader.h>
+#include <pcl/slam/session.h>
 #include <pcl/slam/slam_map.h>
 #include <pcl/evaluation/trajectory_evaluation.h>
 
@@ -174,6 +175,37 @@ processCpuS()
          1e-6 * (usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
 }
 
+/// Save the finished run as a session (-save-session): the summary's "session" entry.
+/// A run that ended with an error saves none (its map may lack what the error cut off);
+/// a failed save throws (SessionError, exit 2) and the outputs are not published.
+json
+saveSessionOf(const rast::RastSlam& slam,
+              const std::string& dir,
+              rast::SensorPreset preset,
+              const json& parameters,
+              bool run_failed)
+{
+  if (run_failed) {
+    std::cerr << "pcl_rast_slam: the run failed; no session was saved in " << dir << "\n";
+    return {{"dir", dir}, {"saved", false}};
+  }
+  const auto start = std::chrono::steady_clock::now();
+  rast::SessionInfo info;
+  info.sensor_preset = rast::toString(preset);
+  info.created_by = "pcl_rast_slam";
+  info.parameters_json = parameters.dump(-1, ' ', false, json::error_handler_t::replace);
+  rast::saveSession(slam, dir, info);
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  std::cerr << "Saved session " << dir << " (" << slam.statistics().keyframes
+            << " key-frames, " << seconds << " s)\n";
+  return {{"dir", dir},
+          {"saved", true},
+          {"keyframes", slam.statistics().keyframes},
+          {"format_version", rast::kSessionFormatVersion},
+          {"save_s", seconds}};
+}
+
 /// One scan read ahead by the reader thread, or the reason it could not be read.
 struct ReadItem
 {
@@ -294,7 +326,7 @@ int
 run(int argc, char** argv)
 {
   const rast::SlamParams defaults;
-  std::string input, output, gt_path, threads = defaults.deterministic ? "off" : "on";
+  std::string input, output, gt_path, save_session, threads = defaults.deterministic ? "off" : "on";
   int first = 0, last = -1, stride = 1;
   bool no_loop = !defaults.loop_closing.enable;
   bool no_revisit_culling = !defaults.loop_closing.cull_revisits;
@@ -320,6 +352,10 @@ run(int argc, char** argv)
   parser.addString("gt", "ground-truth poses (KITTI or TUM, LiDAR frame), one per scan "
                          "of the folder or per selected frame",
                    &gt_path);
+  parser.addString("save-session",
+                   "also save the map as a session in this folder (key-frames, features, "
+                   "pose graph; doc/session.md), for localization and later runs",
+                   &save_session);
   parser.addInt("first", "first scan index", &first);
   parser.addInt("last", "last scan index, inclusive (-1: the last)", &last);
   parser.addInt("stride", "use every stride-th scan", &stride);
@@ -404,6 +440,10 @@ run(int argc, char** argv)
   options.stride = static_cast<std::size_t>(stride);
   rast::SequenceReader reader(input, options);
   pcl_rast_tools::checkOutputIsNotInput(output, reader.scanFolder());
+  if (!save_session.empty()) {
+    pcl_rast_tools::checkOutputIsNotInput(save_session, reader.scanFolder());
+    rast::checkSessionDestination(save_session);
+  }
   std::cerr << "Input " << reader.scanFolder() << " [" << reader.numFiles() << " scans, "
             << reader.size() << " selected"
             << (reader.timesPath().empty() ? "" : ", times from " + reader.timesPath())
@@ -727,6 +767,9 @@ run(int argc, char** argv)
       summary["kitti_r_err_deg_per_100m"] = nullptr;
     }
   }
+  if (!save_session.empty())
+    summary["session"] = saveSessionOf(slam, save_session, preset, summary["params"],
+                                       run_error != nullptr);
   outputs.publish(summary); // summary.json last: it lists the files of this run
 
   std::cerr << "Wrote " << (fs::path(output) / "poses_kitti.txt").string()

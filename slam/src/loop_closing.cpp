@@ -52,6 +52,40 @@ loopInformation(int num_inliers, const LoopClosingParams& p)
   return diagonalInformation(p.loop_sigma_t_m * scale, p.loop_sigma_r_rad * scale);
 }
 
+PoseGraph
+keyFrameGraph(const PoseVector& poses,
+              const SlamMap& map,
+              const std::vector<LoopEdge>& loops,
+              const LoopClosingParams& params,
+              std::vector<std::size_t>* loop_of_edge)
+{
+  const std::size_t n = poses.size();
+  const std::vector<KeyFrame::Ptr> keyframes = map.keyFrames(); // at least the n posed
+  PoseGraph graph;
+  for (std::size_t id = 0; id < n; ++id)
+    graph.addNode(static_cast<int>(id), poses[id], id == 0);
+  for (std::size_t id = 1; id < n; ++id) {
+    const auto kf_id = static_cast<KeyFrameId>(id);
+    const Pose3d T = map.odometryEdge(kf_id);
+    graph.addEdge(static_cast<int>(id - 1), static_cast<int>(id), T,
+                  odometryInformation(T, keyframes[id]->odometry_map_scans, params),
+                  PoseGraphEdgeType::kOdometry);
+  }
+  for (std::size_t k = 0; k < loops.size(); ++k) {
+    if (!loops[k].active || loops[k].query >= n || loops[k].candidate >= n)
+      continue;
+    const std::size_t edge = graph.addEdge(
+        static_cast<int>(loops[k].candidate), static_cast<int>(loops[k].query),
+        loops[k].T_candidate_query, loopInformation(loops[k].num_inliers, params),
+        PoseGraphEdgeType::kLoop);
+    if (loop_of_edge) {
+      loop_of_edge->resize(edge + 1, loops.size());
+      (*loop_of_edge)[edge] = k;
+    }
+  }
+  return graph;
+}
+
 bool
 optimizeKeyFrameGraph(SlamMap& map,
                       const SlamParams& params,
@@ -60,35 +94,13 @@ optimizeKeyFrameGraph(SlamMap& map,
                       std::vector<std::size_t>& dropped)
 {
   const PoseVector poses = map.keyFramePoses();
-  const std::size_t n = poses.size();
-  if (n < 2)
+  if (poses.size() < 2)
     return false;
   loops = map.loopEdges();
-  const std::vector<KeyFrame::Ptr> keyframes = map.keyFrames(); // at least the n posed
   PoseGraph graph;
   for (int attempt = 0; attempt < 4; ++attempt) {
-    graph = PoseGraph();
-    for (std::size_t id = 0; id < n; ++id)
-      graph.addNode(static_cast<int>(id), poses[id], id == 0);
-    for (std::size_t id = 1; id < n; ++id) {
-      const auto kf_id = static_cast<KeyFrameId>(id);
-      const Pose3d T = map.odometryEdge(kf_id);
-      graph.addEdge(static_cast<int>(id - 1), static_cast<int>(id), T,
-                    odometryInformation(T, keyframes[id]->odometry_map_scans,
-                                        params.loop_closing),
-                    PoseGraphEdgeType::kOdometry);
-    }
     std::vector<std::size_t> loop_of_edge; // edge index -> loop index
-    for (std::size_t k = 0; k < loops.size(); ++k) {
-      if (!loops[k].active || loops[k].query >= n || loops[k].candidate >= n)
-        continue;
-      loop_of_edge.resize(graph.numEdges() + 1, loops.size());
-      loop_of_edge[graph.addEdge(static_cast<int>(loops[k].candidate),
-                                 static_cast<int>(loops[k].query),
-                                 loops[k].T_candidate_query,
-                                 loopInformation(loops[k].num_inliers, params.loop_closing),
-                                 PoseGraphEdgeType::kLoop)] = k;
-    }
+    graph = keyFrameGraph(poses, map, loops, params.loop_closing, &loop_of_edge);
     PoseGraphOptions options = params.pose_graph;
     options.gauge_node_id = 0;
     const PoseGraphSummary summary = optimizePoseGraph(graph, options);
@@ -110,6 +122,14 @@ optimizeKeyFrameGraph(SlamMap& map,
 }
 
 } // namespace loop_closing_detail
+
+PoseGraph
+keyFrameGraph(const SlamMap& map,
+              const std::vector<LoopEdge>& loops,
+              const LoopClosingParams& params)
+{
+  return loop_closing_detail::keyFrameGraph(map.keyFramePoses(), map, loops, params, nullptr);
+}
 
 using loop_closing_detail::loopInformation;
 using loop_closing_detail::odometryInformation;

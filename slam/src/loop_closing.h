@@ -8,6 +8,7 @@
 #include <map>
 #include <pcl/rast/rigid_pose.h>
 #include <pcl/slam/rast_slam.h>
+#include <pcl/slam/session.h>
 #include <vector>
 
 namespace pcl {
@@ -23,6 +24,14 @@ odometryInformation(const Pose3d& T_prev_kf, int map_scans, const LoopClosingPar
 /// sqrt(loop_reference_inliers / inliers).
 Eigen::Matrix<double, 6, 6> loopInformation(int num_inliers, const LoopClosingParams& p);
 
+/// The pose graph of the key-frames of \a map at \a poses (key-frame 0 fixed):
+/// odometry edges, and the active \a loops among them. \a loop_of_edge (optional)
+/// maps each loop edge's index to its index in \a loops.
+PoseGraph keyFrameGraph(const PoseVector& poses,
+                        const SlamMap& map,
+                        const std::vector<LoopEdge>& loops,
+                        const LoopClosingParams& params,
+                        std::vector<std::size_t>* loop_of_edge);
 /// The pose graph of all key-frames of \a map: odometry edges (tracking's relative
 /// motion, refined by local BA), the active loop edges (robust loss), key-frame 0 fixed.
 /// Loops still inconsistent after it (a false loop keeps a large residual) are

@@ -3,6 +3,7 @@
 
 #include <pcl/simulation/lidar_simulator.h>
 #include <pcl/io/pose_io.h>
+#include <pcl/slam/session.h>
 
 #include <pcl/io/pcd_io.h>
 
@@ -160,6 +161,47 @@ TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
   EXPECT_EQ(runTool("-h", log_), 0);
   EXPECT_NE(readFile(log_).find("-map-leaf"), std::string::npos);
   EXPECT_NE(readFile(log_).find("-no-revisit-culling"), std::string::npos);
+}
+
+/// -save-session: the run's map saved as a session that loads back with the run's
+/// key-frames and sensor preset; a folder that is not a session is refused before any
+/// work, and a session folder is replaced by the next run.
+TEST_F(SlamTool, SavesASessionAndRefusesAFolderThatIsNotOne)
+{
+  const fs::path out = dir_ / "out";
+  const fs::path session = dir_ / "session";
+  const std::string common =
+      "-input '" + sequenceDir().string() + "' -output '" + out.string() + "' -software-render";
+  ASSERT_EQ(runTool(common + " -save-session '" + session.string() + "'", log_), 0)
+      << readFile(log_);
+  const nlohmann::json summary = nlohmann::json::parse(readFile(out / "summary.json"));
+  ASSERT_TRUE(summary.contains("session")) << summary.dump(1);
+  EXPECT_TRUE(summary["session"]["saved"].get<bool>());
+  const pcl::rast::Session loaded = pcl::rast::loadSession(session.string());
+  EXPECT_EQ(loaded.keyframes.size(), summary["keyframes"].get<std::size_t>());
+  EXPECT_EQ(loaded.info.sensor_preset, summary["params"]["sensor"].get<std::string>());
+  EXPECT_EQ(loaded.info.created_by, "pcl_rast_slam");
+  EXPECT_EQ(loaded.info.num_frames, 40u);
+  const std::string first_json = readFile(session / "session.json");
+
+  // A folder of other files: exit 2 naming it, before any work, the folder untouched.
+  const fs::path scans = dir_ / "scans";
+  fs::create_directories(scans);
+  std::ofstream(scans / "keep.txt") << "mine";
+  const fs::path out2 = dir_ / "out2";
+  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + out2.string() +
+                        "' -save-session '" + scans.string() + "'",
+                    log_),
+            2);
+  EXPECT_NE(readFile(log_).find(scans.string()), std::string::npos) << readFile(log_);
+  EXPECT_EQ(readFile(scans / "keep.txt"), "mine");
+  EXPECT_FALSE(fs::exists(out2 / "summary.json"));
+
+  // The same session folder again: replaced by a complete session of the new run.
+  ASSERT_EQ(runTool(common + " -last 19 -save-session '" + session.string() + "'", log_), 0)
+      << readFile(log_);
+  EXPECT_NE(readFile(session / "session.json"), first_json);
+  EXPECT_EQ(pcl::rast::loadSession(session.string()).info.num_frames, 20u);
 }
 
 /// An exception in the loop-closing thread mid-run (injected at its second key-frame)

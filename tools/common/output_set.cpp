@@ -4,7 +4,7 @@
 #include "output_set.h"
 
 #include <algorithm>
-#include <boost/crc.hpp>
+#include <pcl/rast/file_checksum.h>
 #include <cerrno>
 #include <csignal>
 #include <cstdio>
@@ -179,23 +179,6 @@ checkOutputIsNotInput(const std::string& output, const std::string& scan_folder)
         "-output " + output + " is the scan folder " + scan_folder +
         ": the next run would read the map and poses written there "
         "as scans; choose another output folder");
-}
-
-std::string
-fileCrc32(const std::string& path)
-{
-  std::ifstream in(path, std::ios::binary);
-  if (!in)
-    throw std::runtime_error("cannot read " + path);
-  boost::crc_32_type crc;
-  std::vector<char> buffer(1 << 20);
-  while (in) {
-    in.read(buffer.data(), static_cast<std::streamsize>(buffer.size()));
-    crc.process_bytes(buffer.data(), static_cast<std::size_t>(in.gcount()));
-  }
-  char hex[9];
-  std::snprintf(hex, sizeof hex, "%08x", crc.checksum());
-  return hex;
 }
 
 OutputSetCheck

@@ -9,6 +9,8 @@
 /// move, so a run killed while publishing is completed by the next one (roll forward);
 /// checkOutputSet() tells a complete set from a mixed one.
 
+#include <pcl/rast/file_checksum.h>
+
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
@@ -24,9 +26,8 @@ void checkWritableFolder(const std::string& dir);
 /// \throws std::invalid_argument naming both.
 void checkOutputIsNotInput(const std::string& output, const std::string& scan_folder);
 
-/// \brief CRC-32 (IEEE, as zlib) of a file's bytes, as 8 hex digits.
-/// \throws std::runtime_error when it cannot be read.
-std::string fileCrc32(const std::string& path);
+/// The CRC-32 of a file (common: pcl/rast/file_checksum.h), as output sets list it.
+using pcl::rast::fileCrc32;
 
 /// \brief What checkOutputSet() found.
 struct OutputSetCheck

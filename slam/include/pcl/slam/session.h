@@ -1,0 +1,130 @@
+#pragma once
+/// \file session.h
+/// \brief A map that outlives its run (issue 13): everything a later run needs to
+/// localize on it or extend it, saved as a folder of files other tools read.
+///
+/// \code
+/// DIR/session.json          versioned: sensor preset, parameters, key-frames, loops,
+///                           and every file below with its size and CRC-32
+/// DIR/graph.g2o             key-frame poses (corrected) and the pose graph: odometry
+///                           edges between consecutive key-frames, the active loops
+/// DIR/keyframes/NNNNNN.pcd  each key-frame's cloud (PointXYZI, its LiDAR frame)
+/// DIR/features/NNNNNN.pcd   its ORB features (ORBSignature256: point, raster position,
+///                           response, angle, octave and the 256-bit descriptor)
+/// \endcode
+///
+/// The appearance index is not stored: it is rebuilt from the feature clouds when a
+/// session is used (KeyFrameDatabase, milliseconds per thousand key-frames).
+///
+/// Writing is all or nothing: the files go to a staging folder beside DIR, which then
+/// replaces DIR in one rename (an atomic exchange where the file system has one). A
+/// failed save leaves an earlier session in DIR as it was. Loading checks the version,
+/// the sensor preset and every file's size and checksum before it reads any cloud.
+/// \ingroup slam
+
+#include <pcl/slam/keyframe.h>
+#include <pcl/slam/pose_graph.h>
+#include <pcl/slam/slam_map.h>
+
+#include <cstddef>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace pcl {
+namespace rast {
+
+class RastSlam;
+struct LoopClosingParams;
+
+/// \brief The session format this library writes and the newest it reads.
+constexpr int kSessionFormatVersion = 1;
+
+/// \brief A session that cannot be written or used: names the file and what is wrong.
+class SessionError : public std::runtime_error
+{
+public:
+  SessionError(const std::string& path, const std::string& what_failed)
+      : std::runtime_error(path + ": " + what_failed), path_(path)
+  {}
+  /// \brief The file or folder at fault.
+  const std::string&
+  path() const
+  {
+    return path_;
+  }
+
+private:
+  std::string path_;
+};
+
+/// \brief What a session records about the run that made it.
+struct SessionInfo
+{
+  std::string sensor_preset;        ///< preset name ("hdl64", ...); checked on load
+  std::string created_by = "pcl_rast"; ///< the program that saved it
+  std::string parameters_json = "{}";   ///< the run's parameters, a JSON object
+  std::size_t num_frames = 0;           ///< input frames of the run
+};
+
+/// \brief A saved session in memory.
+struct Session
+{
+  int version = kSessionFormatVersion;
+  SessionInfo info;
+  /// Key-frames in id order (id == index): T_world_keyframe is the corrected pose,
+  /// T_previous_keyframe the odometry edge, features and cloud as saved (a key-frame
+  /// whose features the run had released has none).
+  std::vector<KeyFrame::Ptr> keyframes;
+  std::vector<LoopEdge> loops; ///< the active loop edges
+  /// The pose graph as saved (nodes = key-frame ids).
+  PoseGraph graph;
+};
+
+/// \brief The pose graph of a SLAM map's key-frames as loop closing optimizes it:
+/// nodes at the corrected poses (key-frame 0 fixed), odometry edges between
+/// consecutive key-frames and the \a loops that are active, with the information loop
+/// closing gives them.
+PoseGraph
+keyFrameGraph(const SlamMap& map,
+              const std::vector<LoopEdge>& loops,
+              const LoopClosingParams& params);
+
+/// \brief Check, before any work, that a session can be saved in \a dir: a usable
+/// name, and a folder that is missing, empty or holds a session (which a save replaces).
+/// \throws SessionError naming the folder otherwise.
+void
+checkSessionDestination(const std::string& dir);
+
+/// \brief Save the finished \a slam (RastSlam::finish() called) as a session in \a dir.
+/// Key-frame clouds are the map's compact copies (SlamMap::keyFrameCloud), written one
+/// at a time. \a dir is created, or replaced when it holds a session; a folder that
+/// holds something else is refused.
+/// \throws SessionError naming the folder or file and the cause (nothing is then
+/// changed in \a dir).
+void
+saveSession(const RastSlam& slam, const std::string& dir, SessionInfo info);
+
+/// \brief Save a session held in memory (a loaded or merged one) in \a dir, as above.
+/// \throws SessionError, or std::invalid_argument when key-frame ids are not 0..n-1 or
+/// a key-frame has no cloud.
+void
+saveSession(const Session& session, const std::string& dir);
+
+/// \brief How loadSession checks and what it reads.
+struct SessionLoadOptions
+{
+  /// When set, a session saved with another sensor preset is an error.
+  std::string expected_sensor_preset;
+  bool load_clouds = true; ///< read the key-frame clouds (else KeyFrame::cloud is null)
+};
+
+/// \brief Load the session in \a dir. Before reading any cloud it checks session.json
+/// (format, version no newer than kSessionFormatVersion, sensor preset) and the size
+/// and CRC-32 of every file it lists.
+/// \throws SessionError naming the file and what is wrong with it.
+Session
+loadSession(const std::string& dir, const SessionLoadOptions& options = SessionLoadOptions());
+
+} // namespace rast
+} // namespace pcl
