@@ -192,9 +192,7 @@ run(int argc, char** argv)
   for (std::size_t i = 0; i < reader.size() && !run_error; ++i) {
     if (stopRequested()) {
       stopped_at = i;
-      std::fprintf(stderr, "\npcl_rast_odometry: %s after %zu frames; writing the results so "
-                           "far (a second signal ends at once and keeps the previous output)\n",
-                   stopSignalName(), i);
+      reportStop("pcl_rast_odometry", i);
       break;
     }
     rast::OdometryFrameResult r;

@@ -5,6 +5,7 @@
 
 #include <atomic>
 #include <csignal>
+#include <cstdio>
 #include <initializer_list>
 #include <unistd.h>
 
@@ -71,6 +72,15 @@ stopSignalName()
   default:
     return "";
   }
+}
+
+void
+reportStop(const char* tool, std::size_t frames)
+{
+  std::fprintf(stderr,
+               "\n%s: %s after %zu frames; writing the results so far (a second signal ends "
+               "at once and keeps the previous output)\n",
+               tool, stopSignalName(), frames);
 }
 
 } // namespace pcl_rast_tools

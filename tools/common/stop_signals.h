@@ -7,6 +7,8 @@
 /// (`pcl_rast_slam ... 2>&1 | head`) fails those writes instead of killing the run, and
 /// so is SIGXFSZ: a file size limit fails the write with an error that names it.
 
+#include <cstddef>
+
 namespace pcl_rast_tools {
 
 /// \brief Install the handlers. Call once, before the work starts.
@@ -20,5 +22,9 @@ int stopSignal();
 
 /// \brief The signal's name ("SIGTERM"), or "" when none came.
 const char* stopSignalName();
+
+/// \brief Tell the user on stderr that \a tool stops after \a frames on the signal and
+/// writes what it has.
+void reportStop(const char* tool, std::size_t frames);
 
 } // namespace pcl_rast_tools

@@ -1,0 +1,199 @@
+#pragma once
+/// \file session_localizer.h
+/// \brief Placing a scan on a saved session's map with no prior pose (issue 13: cold
+/// start and relocalization). The scan's raster ORB features retrieve the session's
+/// key-frames that look most alike (the appearance index, rebuilt from the saved
+/// features), and each is verified as a loop would be: descriptor matching, RANSAC,
+/// guided matching, spread, uniqueness and self-similarity checks, then the dense
+/// point-to-plane check on the key-frame's cloud. The first candidate that passes
+/// places the scan; none passing is a failure, never a guess.
+/// \ingroup slam
+
+#include <pcl/slam/loop_types.h>
+#include <pcl/slam/odometry.h>
+#include <pcl/slam/session.h>
+#include <pcl/registration/point_to_plane_refinement.h>
+
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+
+#include <memory>
+#include <string>
+
+namespace pcl {
+namespace rast {
+
+/// \brief Settings of SessionLocalizer.
+struct SessionLocalizerParams
+{
+  /// The front end that extracts the scan's features (ground removal, raster, ORB):
+  /// the session's sensor preset applied to it is what the session was made with.
+  OdometryParams odometry;
+  /// Retrieval and verification. The key-frame and travel gaps that keep a loop away
+  /// from its own recent past do not apply to a map from another run: they are set so
+  /// that every key-frame is eligible.
+  LoopDetectorParams verification;
+  /// Key-frames verified per scan, best appearance first (>= 1).
+  int max_candidates = 6;
+  /// \brief Whether all values are usable; on failure \a why (if not null) says which.
+  bool isValid(std::string* why = nullptr) const;
+};
+
+/// \brief Where a scan was placed on the map, or why it was not.
+struct Placement
+{
+  bool success = false;
+  /// Pose of the scan's LiDAR frame in the session's world frame (when success).
+  Pose3d T_world_lidar = Pose3d::Identity();
+  KeyFrameId keyframe = 0; ///< the session key-frame it was verified against
+  int num_inliers = 0;     ///< feature inliers of that verification
+  double dense_overlap = 0.0;
+  double dense_rmse_m = 0.0;
+  int num_features = 0;         ///< ORB features of the scan
+  int candidates_retrieved = 0; ///< key-frames that shared appearance with it
+  int candidates_verified = 0;  ///< of which verified before one passed (or all failed)
+  double time_ms = 0.0;         ///< features, retrieval and verification
+  std::string message;          ///< what placed it, or why nothing did
+};
+
+/// \brief A loaded session ready to place scans on (see the file comment).
+///
+/// \code
+/// pcl::rast::Session session = pcl::rast::loadSession("session");
+/// pcl::rast::SessionLocalizerParams params;
+/// pcl::rast::applySensorPreset(
+///     pcl::rast::sensorPresetFromName(session.info.sensor_preset), params.odometry);
+/// pcl::rast::SessionLocalizer localizer(std::move(session), params);
+/// const pcl::rast::Placement p = localizer.place(scan);
+/// if (p.success) use(p.T_world_lidar);
+/// \endcode
+class SessionLocalizer
+{
+public:
+  /// \brief Index the session's key-frames (those with features and a cloud).
+  /// \throws std::invalid_argument on invalid params or a session without key-frames
+  SessionLocalizer(Session session, const SessionLocalizerParams& params);
+  ~SessionLocalizer();
+  SessionLocalizer(const SessionLocalizer&) = delete;
+  SessionLocalizer& operator=(const SessionLocalizer&) = delete;
+
+  /// \brief Place \a scan (its LiDAR frame) on the map with no prior pose. Safe to call
+  /// from several threads at once.
+  Placement place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan) const;
+
+  /// \brief Place a scan whose features are known already (a key-frame of another
+  /// run, say): its features and cloud are used, its id and pose are not.
+  Placement place(const KeyFrame& query) const;
+
+  const Session& session() const;
+  /// \brief Key-frames in the appearance index.
+  std::size_t numIndexed() const;
+
+private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// \brief What a localization knows about one frame.
+enum class LocalizationStatus
+{
+  kLocalized,    ///< aligned to the map this frame (or placed on it)
+  kTrackingOnly, ///< the map did not confirm it: the odometry carried the pose on
+  kLost          ///< no pose on the map (before the first placement, or given up)
+};
+
+/// \brief "localized", "tracking_only", "lost".
+const char*
+toString(LocalizationStatus status);
+
+/// \brief Settings of MapLocalization.
+struct MapLocalizationParams
+{
+  /// The scan is aligned to the clouds of the session key-frames within this distance
+  /// of its predicted position (the nearest few, see map_keyframes) [m].
+  double map_radius_m = 30.0;
+  int map_keyframes = 3; ///< key-frames aligned to per frame, nearest first (>= 1)
+  /// The alignment: point-to-plane on a key-frame's cloud, from the prediction. It
+  /// confirms the pose when it succeeds: at least min_correspondences source points
+  /// paired, at least min_overlap_ratio of them, within the allowed correction ...
+  PointToPlaneParams alignment = [] {
+    PointToPlaneParams p;
+    p.source_voxel_size_m = 0.5;
+    p.target_voxel_size_m = 0.3;
+    p.max_correspondence_distance_m = 1.0;
+    p.max_source_points = 2000;
+    p.max_iterations = 20;
+    p.min_correspondences = 150;
+    p.min_overlap_ratio = 0.3;
+    p.max_correction_m = 2.0;
+    p.max_correction_rad = 5.0 * 3.14159265358979323846 / 180.0;
+    return p;
+  }();
+  /// ... with an RMS point-to-plane residual at most this [m].
+  double max_rmse_m = 0.15;
+  /// A placement this far from where the frame was predicted is a jump ("kidnapped")
+  /// [m]; the jump is reported and the placement taken.
+  double jump_m = 2.0;
+  /// Frames the odometry may carry the pose alone before it is given up (lost).
+  int max_tracking_only_frames = 30;
+  /// \brief Whether all values are usable; on failure \a why (if not null) says which.
+  bool isValid(std::string* why = nullptr) const;
+};
+
+/// \brief One localized frame.
+struct LocalizationFrame
+{
+  std::size_t frame_index = 0;
+  double timestamp_s = 0.0;
+  LocalizationStatus status = LocalizationStatus::kLost;
+  /// Pose in the session's world frame (meaningful unless lost; lost frames keep the
+  /// last pose carried on by the odometry, or identity before any placement).
+  Pose3d T_world_lidar = Pose3d::Identity();
+  bool placed = false;   ///< placed by retrieval this frame (cold start, relocalization)
+  bool jump = false;     ///< that placement was a jump away from the prediction
+  double jump_m = 0.0;   ///< how far
+  KeyFrameId keyframe = 0; ///< the session key-frame it was aligned to or placed on
+  int correspondences = 0; ///< of the map alignment
+  double rmse_m = 0.0;     ///< of the map alignment
+  double time_ms = 0.0;
+  std::string message;
+};
+
+/// \brief Localization of a sequence on a session (issue 13): the first scan is placed
+/// by SessionLocalizer (or given a pose), then every scan is tracked frame to frame by
+/// the odometry and aligned to the session's key-frame clouds near its prediction.
+/// When the map does not confirm a frame, retrieval runs again: a placement far from
+/// the prediction is reported as a jump (kidnapping) and taken.
+class MapLocalization
+{
+public:
+  /// \param[in] localizer the session (kept by reference: it must outlive this)
+  /// \param[in] odometry the front end for frame-to-frame tracking
+  /// \throws std::invalid_argument on invalid params
+  MapLocalization(const SessionLocalizer& localizer,
+                  const OdometryParams& odometry,
+                  const MapLocalizationParams& params = MapLocalizationParams());
+  ~MapLocalization();
+  MapLocalization(const MapLocalization&) = delete;
+  MapLocalization& operator=(const MapLocalization&) = delete;
+
+  /// \brief Start from a known pose instead of placing the first scan by retrieval
+  /// (before the first addScan). \throws std::logic_error after it.
+  void setInitialPose(const Pose3d& T_world_lidar);
+
+  /// \brief Localize the next scan.
+  LocalizationFrame addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+                            double timestamp_s,
+                            std::size_t frame_index);
+  /// \brief A scan that could not be read: carried on by the odometry's prediction.
+  LocalizationFrame addSkippedScan(double timestamp_s,
+                                   std::size_t frame_index,
+                                   const std::string& reason);
+
+private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+} // namespace rast
+} // namespace pcl

@@ -1,0 +1,454 @@
+/// \file session_localizer.cpp
+/// \brief SessionLocalizer: a scan placed on a session's map by appearance retrieval
+/// and loop verification (session_localizer.h).
+
+#include <pcl/slam/session_localizer.h>
+
+#include <pcl/slam/loop_detector.h>
+
+#include <pcl/common/time.h>
+
+#include <algorithm>
+#include <deque>
+#include <map>
+#include <optional>
+#include <cstdio>
+#include <stdexcept>
+
+namespace pcl {
+namespace rast {
+
+bool
+SessionLocalizerParams::isValid(std::string* why) const
+{
+  const auto fail = [why](const std::string& message) {
+    if (why)
+      *why = message;
+    return false;
+  };
+  std::string sub;
+  if (!odometry.isValid(&sub))
+    return fail("odometry: " + sub);
+  if (!verification.isValid(&sub))
+    return fail("verification: " + sub);
+  if (max_candidates < 1)
+    return fail("max_candidates must be >= 1, got " + std::to_string(max_candidates));
+  return true;
+}
+
+struct SessionLocalizer::Impl
+{
+  Session session;
+  SessionLocalizerParams params;
+  std::unique_ptr<LoopDetector> detector;
+  std::size_t indexed = 0;
+};
+
+namespace {
+
+/// Verification settings for a map of another run: no gaps to the query's own past.
+LoopDetectorParams
+localizationParams(LoopDetectorParams p)
+{
+  p.min_keyframe_gap = 1; // the query takes an id past the map's: every key-frame passes
+  p.min_travel_gap_m = 0.0;
+  return p;
+}
+
+} // namespace
+
+SessionLocalizer::SessionLocalizer(Session session, const SessionLocalizerParams& params)
+    : impl_(std::make_unique<Impl>())
+{
+  std::string why;
+  if (!params.isValid(&why))
+    throw std::invalid_argument("SessionLocalizer: invalid parameters: " + why);
+  if (session.keyframes.empty())
+    throw std::invalid_argument("SessionLocalizer: the session has no key-frames");
+  impl_->params = params;
+  impl_->params.verification = localizationParams(params.verification);
+  impl_->session = std::move(session);
+  impl_->detector = std::make_unique<LoopDetector>(impl_->params.verification);
+  for (const KeyFrame::Ptr& kf : impl_->session.keyframes) {
+    if (!kf || kf->features.empty() || !kf->cloud)
+      continue; // nothing to match against (features released, or clouds not loaded)
+    impl_->detector->addKeyFrame(kf, kf->T_world_keyframe);
+    ++impl_->indexed;
+  }
+}
+
+SessionLocalizer::~SessionLocalizer() = default;
+
+const Session&
+SessionLocalizer::session() const
+{
+  return impl_->session;
+}
+
+std::size_t
+SessionLocalizer::numIndexed() const
+{
+  return impl_->indexed;
+}
+
+Placement
+SessionLocalizer::place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan) const
+{
+  const pcl::StopWatch watch;
+  if (!scan || scan->empty()) {
+    Placement p;
+    p.message = "empty scan";
+    return p;
+  }
+  // A fresh front end makes its first usable scan key-frame 0: features and cloud.
+  Odometry odometry(impl_->params.odometry);
+  const OdometryFrameResult first = odometry.processFrame(scan, 0.0, 0);
+  if (!first.keyframe) {
+    Placement p;
+    p.message = "no features: " + first.message;
+    p.time_ms = watch.getTime();
+    return p;
+  }
+  Placement p = place(*first.keyframe);
+  p.time_ms = watch.getTime();
+  return p;
+}
+
+Placement
+SessionLocalizer::place(const KeyFrame& query_in) const
+{
+  const pcl::StopWatch watch;
+  Placement p;
+  p.num_features = static_cast<int>(query_in.features.size());
+  if (query_in.features.empty() || !query_in.cloud) {
+    p.message = "the scan has no features or no cloud";
+    return p;
+  }
+  // The query's id only has to differ from the map's.
+  KeyFrame query = query_in;
+  query.id = static_cast<KeyFrameId>(impl_->session.keyframes.size());
+  const LoopDetector& detector = *impl_->detector;
+  const std::vector<std::pair<KeyFrameId, int>> ranking =
+      detector.rankByAppearance(query, Pose3d::Identity());
+  p.candidates_retrieved = static_cast<int>(ranking.size());
+  const GuessTolerance no_guess; // any pose: there is no prior
+  std::string reasons;
+  for (const auto& [id, score] : ranking) {
+    if (p.candidates_verified >= impl_->params.max_candidates)
+      break;
+    if (score < impl_->params.verification.min_appearance_score)
+      break; // ranked by score per feature: a later one can still score more, but
+             // below the minimum here means a weak match throughout
+    ++p.candidates_verified;
+    const KeyFrame& candidate = *impl_->session.keyframes.at(id);
+    const LoopVerification v = detector.verify(query, candidate, Pose3d::Identity(), no_guess);
+    if (!v.accepted) {
+      if (reasons.size() < 400)
+        reasons += (reasons.empty() ? "" : "; ") + std::to_string(id) + ": " + v.reason;
+      continue;
+    }
+    p.success = true;
+    p.keyframe = id;
+    p.T_world_lidar = normalizedPose(candidate.T_world_keyframe * v.T_candidate_query);
+    p.num_inliers = v.num_inliers;
+    p.dense_overlap = v.dense_overlap;
+    p.dense_rmse_m = v.dense_rmse_m;
+    char text[160];
+    std::snprintf(text, sizeof text,
+                  "placed on key-frame %u (candidate %d of %d): %d inliers, dense overlap "
+                  "%.2f, rmse %.3f m",
+                  static_cast<unsigned>(id), p.candidates_verified, p.candidates_retrieved,
+                  v.num_inliers, v.dense_overlap, v.dense_rmse_m);
+    p.message = text;
+    p.time_ms = watch.getTime();
+    return p;
+  }
+  p.message = ranking.empty() ? "no key-frame of the map shares its appearance"
+                              : "no candidate verified (" + reasons + ")";
+  p.time_ms = watch.getTime();
+  return p;
+}
+
+// ---- MapLocalization ----
+
+const char*
+toString(LocalizationStatus status)
+{
+  switch (status) {
+  case LocalizationStatus::kLocalized:
+    return "localized";
+  case LocalizationStatus::kTrackingOnly:
+    return "tracking_only";
+  case LocalizationStatus::kLost:
+    return "lost";
+  }
+  return "unknown";
+}
+
+bool
+MapLocalizationParams::isValid(std::string* why) const
+{
+  const auto fail = [why](const std::string& message) {
+    if (why)
+      *why = message;
+    return false;
+  };
+  std::string sub;
+  if (!(map_radius_m > 0.0))
+    return fail("map_radius_m must be > 0, got " + std::to_string(map_radius_m));
+  if (map_keyframes < 1)
+    return fail("map_keyframes must be >= 1, got " + std::to_string(map_keyframes));
+  if (!alignment.isValid(&sub))
+    return fail("alignment: " + sub);
+  if (!(max_rmse_m > 0.0))
+    return fail("max_rmse_m must be > 0, got " + std::to_string(max_rmse_m));
+  if (!(jump_m > 0.0))
+    return fail("jump_m must be > 0, got " + std::to_string(jump_m));
+  if (max_tracking_only_frames < 0)
+    return fail("max_tracking_only_frames must be >= 0, got " +
+                std::to_string(max_tracking_only_frames));
+  return true;
+}
+
+struct MapLocalization::Impl
+{
+  Impl(const SessionLocalizer& l, const OdometryParams& o, const MapLocalizationParams& p)
+      : localizer(l), odometry_params(o), params(p), odometry(std::make_unique<Odometry>(o))
+  {}
+
+  /// An alignment to the map that confirmed a pose.
+  struct Alignment
+  {
+    Pose3d T_world_lidar = Pose3d::Identity();
+    KeyFrameId keyframe = 0;
+    int correspondences = 0;
+    double rmse_m = 0.0;
+  };
+
+  const SessionLocalizer& localizer;
+  OdometryParams odometry_params;
+  MapLocalizationParams params;
+  std::unique_ptr<Odometry> odometry;
+  bool started = false;
+  std::optional<Pose3d> T_world_previous; ///< the last frame's pose on the map
+  Pose3d T_odom_previous = Pose3d::Identity();
+  bool have_odom_previous = false;
+  int tracking_only = 0;
+  /// Alignment targets of session key-frames (their own frame), the newest used last.
+  std::map<KeyFrameId, std::shared_ptr<const PointToPlaneTarget>> targets;
+  std::deque<KeyFrameId> target_order;
+  static constexpr std::size_t kMaxTargets = 32;
+
+  std::shared_ptr<const PointToPlaneTarget> target(const KeyFrame& kf)
+  {
+    if (auto it = targets.find(kf.id); it != targets.end())
+      return it->second;
+    auto t = std::make_shared<PointToPlaneTarget>();
+    t->build(*kf.cloud, params.alignment);
+    if (targets.size() >= kMaxTargets) {
+      targets.erase(target_order.front());
+      target_order.pop_front();
+    }
+    targets.emplace(kf.id, t);
+    target_order.push_back(kf.id);
+    return t;
+  }
+
+  /// The session key-frames with a cloud nearest to \a T_world (within the radius).
+  std::vector<const KeyFrame*> nearestKeyFrames(const Pose3d& T_world) const
+  {
+    std::vector<std::pair<double, const KeyFrame*>> near;
+    for (const KeyFrame::Ptr& kf : localizer.session().keyframes) {
+      if (!kf->cloud || kf->cloud->empty())
+        continue;
+      const double d = (kf->T_world_keyframe.translation() - T_world.translation()).norm();
+      if (d <= params.map_radius_m)
+        near.emplace_back(d, kf.get());
+    }
+    std::sort(near.begin(), near.end(),
+              [](const auto& a, const auto& b) { return a.first < b.first; });
+    std::vector<const KeyFrame*> out;
+    for (std::size_t i = 0; i < near.size() && static_cast<int>(i) < params.map_keyframes; ++i)
+      out.push_back(near[i].second);
+    return out;
+  }
+
+  /// Align the scan to the nearest key-frames from \a predicted; the first that
+  /// confirms the pose wins.
+  std::optional<Alignment> alignToMap(const pcl::PointCloud<pcl::PointXYZI>& scan,
+                                      const Pose3d& predicted,
+                                      std::string& why)
+  {
+    const std::vector<const KeyFrame*> near = nearestKeyFrames(predicted);
+    if (near.empty()) {
+      why = "no key-frame of the map within " + std::to_string(params.map_radius_m) + " m";
+      return std::nullopt;
+    }
+    PointToPlaneTarget source;
+    try {
+      source = prepareSource(scan, params.alignment);
+    } catch (const std::invalid_argument& e) {
+      why = std::string("scan: ") + e.what();
+      return std::nullopt;
+    }
+    for (const KeyFrame* kf : near) {
+      const auto map = target(*kf);
+      if (map->empty())
+        continue;
+      const Pose3d guess = kf->T_world_keyframe.inverse() * predicted;
+      const PointToPlaneResult r = refinePointToPlane(source, *map, guess, params.alignment);
+      if (!r.success) {
+        why = "key-frame " + std::to_string(kf->id) + ": " + r.message;
+        continue;
+      }
+      if (r.rmse_m > params.max_rmse_m) {
+        char text[96];
+        std::snprintf(text, sizeof text, "key-frame %u: rmse %.3f m > %.3f m",
+                      static_cast<unsigned>(kf->id), r.rmse_m, params.max_rmse_m);
+        why = text;
+        continue;
+      }
+      Alignment a;
+      a.T_world_lidar = normalizedPose(kf->T_world_keyframe * r.T_target_source);
+      a.keyframe = kf->id;
+      a.correspondences = r.num_correspondences;
+      a.rmse_m = r.rmse_m;
+      return a;
+    }
+    return std::nullopt;
+  }
+
+  /// The odometry's motion since the previous frame (identity for the first).
+  Pose3d odometryStep(const OdometryFrameResult& odo)
+  {
+    const Pose3d step = have_odom_previous ? T_odom_previous.inverse() * odo.T_world_lidar
+                                           : Pose3d::Identity();
+    T_odom_previous = odo.T_world_lidar;
+    have_odom_previous = true;
+    return normalizedPose(step);
+  }
+
+  /// No alignment and no placement: carried on by the odometry, or given up.
+  void carryOn(LocalizationFrame& f, const Pose3d& predicted, const std::string& why)
+  {
+    ++tracking_only;
+    f.T_world_lidar = predicted;
+    T_world_previous = predicted;
+    f.status = tracking_only > params.max_tracking_only_frames ? LocalizationStatus::kLost
+                                                               : LocalizationStatus::kTrackingOnly;
+    f.message = why;
+  }
+
+  void takePlacement(LocalizationFrame& f,
+                     const Placement& placement,
+                     const std::optional<Pose3d>& predicted)
+  {
+    f.status = LocalizationStatus::kLocalized;
+    f.placed = true;
+    f.T_world_lidar = placement.T_world_lidar;
+    f.keyframe = placement.keyframe;
+    f.message = placement.message;
+    if (predicted) {
+      f.jump_m = (placement.T_world_lidar.translation() - predicted->translation()).norm();
+      f.jump = f.jump_m > params.jump_m;
+      if (f.jump) {
+        // Kidnapped: the odometry's local map is of another place; start it afresh.
+        odometry = std::make_unique<Odometry>(odometry_params);
+        have_odom_previous = false;
+        char text[64];
+        std::snprintf(text, sizeof text, "jump of %.1f m: ", f.jump_m);
+        f.message = text + f.message;
+      }
+    }
+    tracking_only = 0;
+    T_world_previous = placement.T_world_lidar;
+  }
+};
+
+MapLocalization::MapLocalization(const SessionLocalizer& localizer,
+                                 const OdometryParams& odometry,
+                                 const MapLocalizationParams& params)
+{
+  std::string why;
+  if (!params.isValid(&why))
+    throw std::invalid_argument("MapLocalization: invalid parameters: " + why);
+  impl_ = std::make_unique<Impl>(localizer, odometry, params);
+}
+
+MapLocalization::~MapLocalization() = default;
+
+void
+MapLocalization::setInitialPose(const Pose3d& T_world_lidar)
+{
+  if (impl_->started)
+    throw std::logic_error("MapLocalization::setInitialPose after the first scan");
+  if (!T_world_lidar.matrix().allFinite())
+    throw std::invalid_argument("MapLocalization::setInitialPose: the pose is not finite");
+  impl_->T_world_previous = normalizedPose(T_world_lidar);
+}
+
+LocalizationFrame
+MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+                         double timestamp_s,
+                         std::size_t frame_index)
+{
+  const pcl::StopWatch watch;
+  Impl& m = *impl_;
+  m.started = true;
+  LocalizationFrame f;
+  f.frame_index = frame_index;
+  f.timestamp_s = timestamp_s;
+  const OdometryFrameResult odo = m.odometry->processFrame(scan, timestamp_s, frame_index);
+  const Pose3d step = m.odometryStep(odo);
+  std::optional<Pose3d> predicted;
+  if (m.T_world_previous)
+    predicted = normalizedPose(*m.T_world_previous * step);
+
+  std::string why;
+  if (predicted && scan && !scan->empty()) {
+    if (const auto a = m.alignToMap(*scan, *predicted, why)) {
+      f.status = LocalizationStatus::kLocalized;
+      f.T_world_lidar = a->T_world_lidar;
+      f.keyframe = a->keyframe;
+      f.correspondences = a->correspondences;
+      f.rmse_m = a->rmse_m;
+      f.message = "aligned to key-frame " + std::to_string(a->keyframe);
+      m.tracking_only = 0;
+      m.T_world_previous = a->T_world_lidar;
+      f.time_ms = watch.getTime();
+      return f;
+    }
+  }
+  // The map did not confirm the prediction (or there is none): place the scan anew.
+  const Placement placement = m.localizer.place(scan);
+  if (placement.success)
+    m.takePlacement(f, placement, predicted);
+  else if (predicted)
+    m.carryOn(f, *predicted, "not confirmed (" + why + "); not placed (" + placement.message + ")");
+  else
+    f.message = "not placed: " + placement.message;
+  f.time_ms = watch.getTime();
+  return f;
+}
+
+LocalizationFrame
+MapLocalization::addSkippedScan(double timestamp_s,
+                                std::size_t frame_index,
+                                const std::string& reason)
+{
+  Impl& m = *impl_;
+  m.started = true;
+  LocalizationFrame f;
+  f.frame_index = frame_index;
+  f.timestamp_s = timestamp_s;
+  const OdometryFrameResult odo = m.odometry->skipFrame(timestamp_s, frame_index, reason);
+  const Pose3d step = m.odometryStep(odo);
+  if (m.T_world_previous)
+    m.carryOn(f, normalizedPose(*m.T_world_previous * step), "skipped: " + reason);
+  else
+    f.message = "skipped: " + reason;
+  return f;
+}
+
+} // namespace rast
+} // namespace pcl

@@ -1,0 +1,226 @@
+/// Cold start on a saved session (issue 13): scans of a second pass over a mapped road
+/// are placed on the map with no prior pose, and scans of a world that was never mapped
+/// are not placed at all. Simulated (HDL-64 loop, seed 3; the other world seed 9).
+
+#include <pcl/simulation/lidar_simulator.h>
+#include <pcl/slam/rast_slam.h>
+#include <pcl/slam/session.h>
+#include <pcl/slam/session_localizer.h>
+
+#include <gtest/gtest.h>
+
+#include "temp_cleanup.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <string>
+
+namespace {
+
+using namespace pcl::rast;
+namespace fs = std::filesystem;
+
+using CloudPtr = pcl::PointCloud<pcl::PointXYZI>::Ptr;
+
+CloudPtr
+simulateFrame(const LidarSimulator& sim, std::size_t i)
+{
+  auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+  sim.simulateFrame(i, *cloud);
+  return cloud;
+}
+
+std::unique_ptr<LidarSimulator>
+simulator(PathType type, int frames, double revisit, std::uint64_t seed)
+{
+  PathParams path;
+  path.type = type;
+  path.num_frames = frames;
+  path.revisit_fraction = revisit;
+  LidarSimulatorParams params;
+  params.seed = seed;
+  params.num_threads = 2;
+  return std::make_unique<LidarSimulator>(params, generatePath(path));
+}
+
+double
+rotationErrorDeg(const Pose3d& a, const Pose3d& b)
+{
+  const Eigen::AngleAxisd d((a.inverse() * b).rotation());
+  return std::abs(d.angle()) * 180.0 / M_PI;
+}
+
+/// The map of the tests: frames 0-149 of 1.25 laps of 160 frames (no loop closed
+/// yet), saved as a session and loaded back; frames 160-199 drive the first 40 m of the
+/// lap again.
+struct MappedLoop
+{
+  std::unique_ptr<LidarSimulator> sim;
+  std::unique_ptr<SessionLocalizer> localizer;
+  OdometryParams odometry;
+  Pose3d T0_inv = Pose3d::Identity(); ///< the session's world is frame 0's LiDAR frame
+
+  Pose3d truth(std::size_t i) const { return T0_inv * sim->sensorPose(i); }
+};
+
+MappedLoop
+mapLoop()
+{
+  MappedLoop m;
+  m.sim = simulator(PathType::kLoop, 200, 0.25, 3);
+  SlamParams slam_params;
+  slam_params.deterministic = true;
+  RastSlam slam(slam_params);
+  for (std::size_t i = 0; i < 150; ++i)
+    slam.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
+  slam.finish();
+  const fs::path dir = fs::temp_directory_path() / "pcl_rast_test" /
+                       ("session_localizer_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  pcl_rast_test::removeAtExit(dir);
+  SessionInfo info;
+  info.sensor_preset = toString(SensorPreset::kHdl64);
+  saveSession(slam, dir.string(), info);
+
+  Session session = loadSession(dir.string());
+  SessionLocalizerParams params;
+  applySensorPreset(sensorPresetFromName(session.info.sensor_preset), params.odometry);
+  m.odometry = params.odometry;
+  m.localizer = std::make_unique<SessionLocalizer>(std::move(session), params);
+  m.T0_inv = m.sim->sensorPose(0).inverse();
+  return m;
+}
+
+TEST(SessionLocalizer, PlacesASecondPassWithNoPriorAndNothingOffTheMap)
+{
+  const MappedLoop m = mapLoop();
+  const auto& sim = m.sim;
+  const SessionLocalizer& localizer = *m.localizer;
+  ASSERT_GT(localizer.numIndexed(), 5u);
+
+  // The session's world is the LiDAR frame of frame 0.
+  int placed = 0, wrong = 0;
+  double max_error_m = 0.0, max_error_deg = 0.0, total_ms = 0.0;
+  for (std::size_t i = 160; i < 200; i += 2) {
+    const Placement p = localizer.place(simulateFrame(*sim, i));
+    total_ms += p.time_ms;
+    if (!p.success)
+      continue;
+    const Pose3d gt = m.truth(i);
+    const double error_m = (p.T_world_lidar.translation() - gt.translation()).norm();
+    const double error_deg = rotationErrorDeg(p.T_world_lidar, gt);
+    ++placed;
+    max_error_m = std::max(max_error_m, error_m);
+    max_error_deg = std::max(max_error_deg, error_deg);
+    // The map itself drifts a little over 150 m: 0.5 m / 1 deg is a right placement.
+    if (error_m > 0.5 || error_deg > 1.0) {
+      ++wrong;
+      ADD_FAILURE() << "frame " << i << " placed " << error_m << " m, " << error_deg
+                    << " deg off: " << p.message;
+    }
+  }
+  std::printf("simulated second pass: %d of 20 scans placed, largest error %.3f m / %.3f deg, "
+              "%.0f ms per scan\n",
+              placed, max_error_m, max_error_deg, total_ms / 20.0);
+  EXPECT_GE(placed, 19) << "of 20 second-pass scans";
+  EXPECT_EQ(wrong, 0);
+
+  // A world that was never mapped: nothing placed.
+  const auto elsewhere = simulator(PathType::kStraight, 40, 0.0, 9);
+  for (std::size_t i = 0; i < 40; i += 4) {
+    const Placement p = localizer.place(simulateFrame(*elsewhere, i));
+    EXPECT_FALSE(p.success) << "frame " << i << " of another world: " << p.message;
+    EXPECT_FALSE(p.message.empty());
+  }
+
+  // No scan at all: a failure that says so.
+  const Placement none = localizer.place(std::make_shared<pcl::PointCloud<pcl::PointXYZI>>());
+  EXPECT_FALSE(none.success);
+  EXPECT_EQ(none.message, "empty scan");
+}
+
+/// A second pass localized scan after scan (cold start, then tracking on the map), and
+/// a kidnapping: 100 frames dropped from the input are reported as a jump and the pose
+/// is right again within 5 frames.
+TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
+{
+  const MappedLoop m = mapLoop();
+  {
+    MapLocalization localization(*m.localizer, m.odometry);
+    int localized = 0;
+    double sum_sq = 0.0, max_error_m = 0.0;
+    for (std::size_t i = 160; i < 200; ++i) {
+      const LocalizationFrame f = localization.addScan(simulateFrame(*m.sim, i),
+                                                       m.sim->timestamp(i), i);
+      const double error_m = (f.T_world_lidar.translation() - m.truth(i).translation()).norm();
+      if (f.status == LocalizationStatus::kLocalized) {
+        ++localized;
+        sum_sq += error_m * error_m;
+        max_error_m = std::max(max_error_m, error_m);
+      }
+      EXPECT_LT(error_m, 2.0) << "frame " << i << " (" << toString(f.status) << "): " << f.message;
+      if (i == 160)
+        EXPECT_TRUE(f.placed) << "the first scan is placed by retrieval: " << f.message;
+      else
+        EXPECT_FALSE(f.jump) << "frame " << i << ": " << f.message;
+    }
+    const double rmse = std::sqrt(sum_sq / std::max(1, localized));
+    std::printf("simulated second pass, 40 frames: %d localized, map-frame RMSE %.3f m, "
+                "largest %.3f m\n",
+                localized, rmse, max_error_m);
+    EXPECT_GE(localized, 38);
+    EXPECT_LT(rmse, 0.10);
+  }
+  {
+    // Frames 20-39, then 140-149: the input jumps 100 m ahead.
+    MapLocalization localization(*m.localizer, m.odometry);
+    int first_right_after_jump = -1;
+    bool jump_reported = false;
+    for (std::size_t i = 20; i < 150; i = (i == 39 ? 140 : i + 1)) {
+      const LocalizationFrame f = localization.addScan(simulateFrame(*m.sim, i),
+                                                       m.sim->timestamp(i), i);
+      const double error_m = (f.T_world_lidar.translation() - m.truth(i).translation()).norm();
+      if (i < 40) {
+        EXPECT_EQ(f.status, LocalizationStatus::kLocalized) << "frame " << i << ": " << f.message;
+        EXPECT_LT(error_m, 0.2) << "frame " << i;
+        continue;
+      }
+      jump_reported = jump_reported || f.jump;
+      if (first_right_after_jump < 0 && f.status == LocalizationStatus::kLocalized &&
+          error_m < 0.2)
+        first_right_after_jump = static_cast<int>(i - 140);
+      if (first_right_after_jump >= 0) {
+        EXPECT_LT(error_m, 0.3) << "frame " << i << " after the recovery: " << f.message;
+      }
+    }
+    EXPECT_TRUE(jump_reported);
+    EXPECT_GE(first_right_after_jump, 0) << "never recovered";
+    EXPECT_LT(first_right_after_jump, 5);
+  }
+}
+
+TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
+{
+  SessionLocalizerParams params;
+  params.max_candidates = 0;
+  Session session;
+  session.keyframes.push_back(std::make_shared<KeyFrame>());
+  try {
+    SessionLocalizer localizer(session, params);
+    ADD_FAILURE() << "max_candidates 0 accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("max_candidates must be >= 1, got 0"),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_THROW(SessionLocalizer(Session(), SessionLocalizerParams()), std::invalid_argument);
+  MapLocalizationParams bad;
+  bad.map_keyframes = 0;
+  std::string why;
+  EXPECT_FALSE(bad.isValid(&why));
+  EXPECT_NE(why.find("map_keyframes must be >= 1, got 0"), std::string::npos) << why;
+}
+
+} // namespace

@@ -1,0 +1,321 @@
+/// \file rast_localize.cpp
+/// \brief pcl_rast_localize: localization of a folder of scans on a saved session
+/// (issue 13, doc/session.md).
+///
+///   pcl_rast_localize -session DIR -input SCANS -output OUT [-initial-pose "x y z qx qy qz qw"]
+///                     [-first N] [-last N] [-stride K] [-deskew auto|on|off] [options]
+///
+/// The first scan is placed on the map by retrieval and verification (or starts at
+/// -initial-pose); then each scan is tracked frame to frame and aligned to the map's
+/// key-frames; when the map does not confirm a frame it is placed anew, and a jump
+/// (kidnapping) is reported. Writes OUT/poses_kitti.txt and poses_tum.txt (the map's
+/// frame), status.csv (one row per frame: localized / tracking_only / lost),
+/// render.png (the trajectory over the session's map) and summary.json, as one set.
+/// Exit codes: 0 ok, 1 bad arguments, 2 I/O error or a bad session, 3 no scan usable.
+
+#include <pcl/io/pose_io.h>
+#include <pcl/io/sequence_reader.h>
+#include <pcl/slam/session.h>
+#include <pcl/slam/session_localizer.h>
+#include <pcl/visualization/map_render.h>
+
+#include "cli.h"
+#include "output_set.h"
+#include "sensor_choice.h"
+#include "stop_signals.h"
+
+#include <nlohmann/json.hpp>
+
+#include <pcl/common/time.h>
+
+#include <algorithm>
+#include <cmath>
+#include <optional>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <unordered_set>
+#include <vector>
+
+namespace {
+
+namespace rast = pcl::rast;
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+/// "x y z qx qy qz qw" as a pose. \throws std::invalid_argument naming the value.
+rast::Pose3d
+parsePose(const std::string& text)
+{
+  std::istringstream in(text);
+  double v[7];
+  for (double& x : v)
+    if (!(in >> x) || !std::isfinite(x))
+      throw std::invalid_argument("-initial-pose '" + text +
+                                  "': need 7 finite numbers, x y z qx qy qz qw");
+  std::string extra;
+  if (in >> extra)
+    throw std::invalid_argument("-initial-pose '" + text + "': more than 7 numbers");
+  const Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
+  if (std::abs(q.norm() - 1.0) > 1e-3)
+    throw std::invalid_argument("-initial-pose '" + text + "': the quaternion has norm " +
+                                std::to_string(q.norm()) + ", not 1");
+  rast::Pose3d T = rast::Pose3d::Identity();
+  T.linear() = q.normalized().toRotationMatrix();
+  T.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
+  return T;
+}
+
+/// The session's key-frame clouds in its world frame, one point per voxel (render).
+pcl::PointCloud<pcl::PointXYZI>
+sessionMap(const rast::Session& session, double leaf_m, std::size_t& total)
+{
+  pcl::PointCloud<pcl::PointXYZI> map;
+  std::unordered_set<std::uint64_t> seen;
+  total = 0;
+  for (const rast::KeyFrame::Ptr& kf : session.keyframes) {
+    if (!kf->cloud)
+      continue;
+    const Eigen::Isometry3f T = kf->T_world_keyframe.cast<float>();
+    for (const auto& p : kf->cloud->points) {
+      ++total;
+      const Eigen::Vector3f w = T * p.getVector3fMap();
+      const auto key = [&](float c) {
+        return static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(c / leaf_m)) &
+                                          0x1FFFFF);
+      };
+      if (!seen.insert(key(w.x()) | key(w.y()) << 21 | key(w.z()) << 42).second)
+        continue;
+      pcl::PointXYZI q = p;
+      q.getVector3fMap() = w;
+      map.push_back(q);
+    }
+  }
+  return map;
+}
+
+int
+run(int argc, char** argv)
+{
+  using namespace pcl_rast_tools;
+  std::string session_dir, input, output, initial_pose, sensor;
+  int first = 0, last = -1, stride = 1;
+  bool software_render = false, quiet = false;
+  DeskewFlags deskew;
+  rast::MapLocalizationParams params;
+
+  ArgParser args("pcl_rast_localize",
+                 "Localization on a saved session (pcl_rast_slam -save-session): the first "
+                 "scan is placed on the map with no initial pose, then every scan is "
+                 "tracked and aligned to the map; a lost or kidnapped run is placed anew. "
+                 "Writes poses_kitti.txt, poses_tum.txt (the map's frame), status.csv, "
+                 "render.png and summary.json into the output folder.");
+  args.addString("session", "the session folder (pcl_rast_slam -save-session)", &session_dir,
+                 true);
+  args.addString("input", "scan folder (.bin/.pcd/.ply, or with velodyne/ or pcd/)", &input,
+                 true);
+  args.addString("output", "output folder (created when missing)", &output, true);
+  args.addString("initial-pose",
+                 "start here (\"x y z qx qy qz qw\", the map's frame) instead of placing the "
+                 "first scan by retrieval",
+                 &initial_pose);
+  args.addString("sensor", "parameter preset; must be the session's (default: the session's)",
+                 &sensor);
+  args.addInt("first", "first scan index", &first);
+  args.addInt("last", "last scan index, inclusive (-1: the last)", &last);
+  args.addInt("stride", "use every stride-th scan", &stride);
+  addDeskewFlags(args, deskew);
+  args.addDouble("map-radius", "align to session key-frames within this distance [m]",
+                 &params.map_radius_m);
+  args.addDouble("jump", "a placement this far from the prediction is a jump [m]",
+                 &params.jump_m);
+  args.addInt("max-tracking-only",
+              "frames the odometry may carry the pose alone before the run counts as lost",
+              &params.max_tracking_only_frames);
+  args.addSwitch("software-render", "render.png with OpenCV instead of VTK (faster)",
+                 &software_render);
+  args.addSwitch("quiet", "no progress bar", &quiet);
+  if (!args.parse(argc, argv))
+    return kExitOk;
+  installStopSignals();
+
+  // ---- validate everything before any work ----
+  if (first < 0 || stride < 1 || last < -1 || (last >= 0 && last < first))
+    throw std::invalid_argument("bad frame range: -first " + std::to_string(first) + " -last " +
+                                std::to_string(last) + " -stride " + std::to_string(stride));
+  checkDeskewFlags(deskew);
+  std::string why;
+  if (!params.isValid(&why))
+    throw std::invalid_argument("invalid parameters: " + why);
+  std::optional<rast::Pose3d> start;
+  if (!initial_pose.empty())
+    start = parsePose(initial_pose);
+  if (!sensor.empty())
+    rast::sensorPresetFromName(sensor); // names the value when it is none
+
+  rast::SequenceReaderOptions options;
+  options.first = static_cast<std::size_t>(first);
+  options.last = last;
+  options.stride = static_cast<std::size_t>(stride);
+  rast::SequenceReader reader(input, options);
+  checkOutputIsNotInput(output, reader.scanFolder());
+  if (fs::weakly_canonical(output) == fs::weakly_canonical(session_dir))
+    throw std::invalid_argument("-output " + output + " is the session folder");
+
+  // The session: every file checked (version, preset, sizes, checksums) before any work.
+  const pcl::StopWatch load_watch;
+  rast::SessionLoadOptions load_options;
+  load_options.expected_sensor_preset = sensor;
+  rast::Session session;
+  try {
+    session = rast::loadSession(session_dir, load_options);
+  } catch (const rast::SessionError& e) {
+    throw std::runtime_error(std::string("bad session: ") + e.what());
+  }
+  const double load_s = load_watch.getTimeSeconds();
+  OutputSet outputs(output, "pcl_rast_localize");
+  const rast::SensorPreset preset = rast::sensorPresetFromName(session.info.sensor_preset);
+  std::fprintf(stderr, "Session %s [%zu key-frames, sensor %s, loaded in %.2f s]\n",
+               session_dir.c_str(), session.keyframes.size(), rast::toString(preset), load_s);
+  std::fprintf(stderr, "Input %s [%zu scans, %zu selected]\n", reader.scanFolder().c_str(),
+               reader.numFiles(), reader.size());
+
+  rast::SessionLocalizerParams localizer_params;
+  rast::applySensorPreset(preset, localizer_params.odometry);
+  std::string deskew_reason, deskew_timing;
+  applyDeskewFlags(deskew, reader, static_cast<std::size_t>(stride),
+                   localizer_params.odometry.deskew, deskew_reason, deskew_timing);
+  std::size_t map_total = 0;
+  const pcl::PointCloud<pcl::PointXYZI> render_map = sessionMap(session, 0.4, map_total);
+  const rast::SessionLocalizer localizer(std::move(session), localizer_params);
+  rast::MapLocalization localization(localizer, localizer_params.odometry, params);
+  if (start)
+    localization.setInitialPose(*start);
+
+  rast::PoseVector poses;
+  std::vector<double> times;
+  std::ostringstream csv;
+  csv << "frame,time,status,placed,jump,jump_m,keyframe,correspondences,rmse_m,ms,message\n";
+  std::map<std::string, std::size_t> status_counts;
+  std::vector<double> frame_ms;
+  json skipped = json::array(), jumps = json::array();
+  std::size_t usable = 0, stopped_at = reader.size();
+  int first_localized = -1;
+  std::optional<ProgressBar> bar;
+  if (!quiet)
+    bar.emplace("Localize", reader.size());
+  for (std::size_t i = 0; i < reader.size(); ++i) {
+    if (stopRequested()) {
+      stopped_at = i;
+      reportStop("pcl_rast_localize", i);
+      break;
+    }
+    rast::LocalizationFrame f;
+    try {
+      const rast::ScanFrame frame = reader.read(i);
+      f = localization.addScan(frame.cloud, frame.timestamp_s, i);
+      ++usable;
+    } catch (const rast::ScanReadError& e) {
+      std::fprintf(stderr, "\nframe %zu: skipped: %s\n", i, e.what());
+      f = localization.addSkippedScan(reader.timestamp(i), i, e.what());
+      skipped.push_back({{"frame", i}, {"path", e.path()}, {"reason", e.what()}});
+    }
+    if (f.status == rast::LocalizationStatus::kLocalized && first_localized < 0)
+      first_localized = static_cast<int>(i);
+    if (f.jump) {
+      std::fprintf(stderr, "\nframe %zu: %s\n", i, f.message.c_str());
+      jumps.push_back({{"frame", i}, {"jump_m", f.jump_m}});
+    }
+    poses.push_back(f.T_world_lidar);
+    times.push_back(f.timestamp_s);
+    ++status_counts[rast::toString(f.status)];
+    frame_ms.push_back(f.time_ms);
+    std::string message = f.message;
+    for (char& c : message)
+      if (c == ',' || c == '\n')
+        c = ';';
+    char row[160];
+    std::snprintf(row, sizeof row, "%zu,%.6f,%s,%d,%d,%.3f,%u,%d,%.4f,%.2f,", i, f.timestamp_s,
+                  rast::toString(f.status), f.placed ? 1 : 0, f.jump ? 1 : 0, f.jump_m,
+                  static_cast<unsigned>(f.keyframe), f.correspondences, f.rmse_m, f.time_ms);
+    csv << row << message << '\n';
+    if (bar)
+      bar->update(i + 1);
+  }
+  if (bar)
+    bar->finish();
+  if (stopped_at == 0) {
+    std::fprintf(stderr, "pcl_rast_localize: %s before the first scan; no output was written\n",
+                 stopSignalName());
+    return 128 + stopSignal();
+  }
+  if (usable == 0) {
+    std::fprintf(stderr, "pcl_rast_localize: error: none of the %zu scans could be used; no "
+                         "output was written\n",
+                 poses.size());
+    return kExitAlgorithmFailure;
+  }
+
+  rast::writeKittiPoses(outputs.path("poses_kitti.txt"), poses);
+  rast::writeTumPoses(outputs.path("poses_tum.txt"), poses, times);
+  rast::writeFileAtomically(outputs.path("status.csv"), csv.str());
+
+  rast::MapRenderParams render_params;
+  render_params.force_software_fallback = software_render;
+  rast::MapRenderInput render_input;
+  render_input.map = &render_map;
+  render_input.map_points_total = map_total;
+  for (const auto& T : poses)
+    render_input.trajectory.push_back(T.translation());
+  render_input.title = "pcl_rast_localize: " + fs::path(session_dir).filename().string();
+  const auto render =
+      rast::renderMapTopDown(render_input, render_params, outputs.path("render.png"));
+  if (!render.success)
+    std::fprintf(stderr, "pcl_rast_localize: warning: render.png not written: %s\n",
+                 render.message.c_str());
+
+  std::vector<double> sorted = frame_ms;
+  std::sort(sorted.begin(), sorted.end());
+  json summary;
+  summary["session"] = session_dir;
+  summary["session_keyframes"] = localizer.session().keyframes.size();
+  summary["session_indexed_keyframes"] = localizer.numIndexed();
+  summary["session_load_s"] = load_s;
+  summary["sensor"] = rast::toString(preset);
+  summary["input"] = reader.scanFolder();
+  summary["frames_selected"] = reader.size();
+  summary["frames"] = poses.size();
+  summary["frames_by_status"] = status_counts;
+  summary["frames_localized"] =
+      status_counts.count("localized") ? status_counts.at("localized") : 0;
+  summary["first_localized_frame"] = first_localized >= 0 ? json(first_localized) : json(nullptr);
+  summary["initial_pose_given"] = start.has_value();
+  summary["jumps"] = jumps;
+  summary["skipped_frames"] = skipped;
+  summary["median_frame_ms"] = sorted.empty() ? 0.0 : sorted[sorted.size() / 2];
+  summary["interrupted"] = stopped_at < reader.size();
+  summary["stop_signal"] = stopRequested() ? json(stopSignalName()) : json(nullptr);
+  summary["deskew"] = {{"mode", rast::toString(localizer_params.odometry.deskew.mode)},
+                       {"reason", deskew_reason}};
+  summary["render_backend"] = render.backend;
+  summary["error"] = nullptr;
+  outputs.publish(summary);
+  std::string counts;
+  for (const auto& [name, count] : status_counts)
+    counts += " " + name + "=" + std::to_string(count);
+  std::fprintf(stderr, "Wrote %s [%zu frames:%s; %zu jumps; median %.1f ms/frame]\n",
+               output.c_str(), poses.size(), counts.c_str(), jumps.size(),
+               summary["median_frame_ms"].get<double>());
+  return kExitOk;
+}
+
+} // namespace
+
+int
+main(int argc, char** argv)
+{
+  return pcl_rast_tools::runTool("pcl_rast_localize", [&] { return run(argc, argv); });
+}
