@@ -1,8 +1,8 @@
 /// \file test_hostile_tools.cpp
 /// \brief The lying-file corpus through every tool (issue 12): each lying scan is a
 /// clear error in pcl_rast_features, and a sequence holding all of them between good
-/// scans finishes with exit 0 in pcl_rast_slam and pcl_rast_odometry, every one of them
-/// skipped with its reason; each lying pose file is a clear error, before any work, in
+/// scans finishes with exit 0 in pcl_rast_slam, pcl_rast_odometry and
+/// pcl_rast_localize, every one of them skipped with its reason; each lying pose file is a clear error, before any work, in
 /// pcl_rast_eval, pcl_rast_slam -gt and pcl_rast_simulate -traj. "Clear" means: the
 /// tool exits with its documented code (it is not killed by a signal), the message
 /// names the file, and nothing is written.
@@ -159,9 +159,24 @@ TEST_P(HostileSequence, FinishesWithEveryLyingScanSkippedAndNamed)
   ASSERT_GE(seq.lying.size(), ext == ".bin" ? 3u : 20u);
   const fs::path out = dir / "out";
   const fs::path log = dir / "log.txt";
-  const std::string quiet = tool == "pcl_rast_slam" ? " -quiet -threads off" : "";
+  std::string extra = tool == "pcl_rast_odometry" ? "" : " -quiet";
+  if (tool == "pcl_rast_slam")
+    extra += " -threads off";
+  if (tool == "pcl_rast_localize") {
+    // Localization needs a map: a session of the same sequence (its lying files are
+    // skipped there as well).
+    const fs::path session = dir / "session";
+    ASSERT_EQ(runTool("pcl_rast_slam",
+                      "-input " + quoted(seq.dir) + " -output " + quoted(dir / "slam") +
+                          " -quiet -threads off -software-render -save-session " +
+                          quoted(session),
+                      log),
+              0)
+        << readFile(log);
+    extra += " -software-render -session " + quoted(session);
+  }
   ASSERT_EQ(
-      runTool(tool, "-input " + quoted(seq.dir) + " -output " + quoted(out) + quiet, log),
+      runTool(tool, "-input " + quoted(seq.dir) + " -output " + quoted(out) + extra, log),
       0)
       << readFile(log);
   const auto summary = nlohmann::json::parse(readFile(out / "summary.json"));
@@ -189,7 +204,8 @@ INSTANTIATE_TEST_SUITE_P(
         std::make_pair(std::string("pcl_rast_slam"), std::string(".bin")),
         std::make_pair(std::string("pcl_rast_odometry"), std::string(".pcd")),
         std::make_pair(std::string("pcl_rast_odometry"), std::string(".ply")),
-        std::make_pair(std::string("pcl_rast_odometry"), std::string(".bin"))),
+        std::make_pair(std::string("pcl_rast_odometry"), std::string(".bin")),
+        std::make_pair(std::string("pcl_rast_localize"), std::string(".pcd"))),
     [](const auto& info) {
       return info.param.first.substr(9) + "_" + info.param.second.substr(1);
     });
