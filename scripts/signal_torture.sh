@@ -3,8 +3,9 @@
 #
 #   scripts/signal_torture.sh BUILD_DIR SCANS [RUNS_PER_TOOL=20] [SEED=1]
 #
-# For pcl_rast_slam and pcl_rast_odometry on the scan folder SCANS (and pcl_rast_simulate
-# on a generated path): first one complete run into a fresh output folder, then
+# For pcl_rast_slam, pcl_rast_odometry and pcl_rast_localize (on a session pcl_rast_slam
+# saves of SCANS first) on the scan folder SCANS, and pcl_rast_simulate on a generated
+# path: first one complete run into a fresh output folder, then
 # RUNS_PER_TOOL runs into the same folder, each sent SIGINT, SIGTERM or SIGHUP (chosen at
 # random) at a random moment of its run, every fourth of them a second signal 20 ms
 # later, and every fifth a SIGKILL instead, timed to land while the outputs are written.
@@ -34,6 +35,8 @@ run_tool() { # tool out; execs: call it in a subshell or in the background
   case "$1" in
   pcl_rast_slam) exec_args=(-input "$scans" -output "$2" -software-render -quiet) ;;
   pcl_rast_odometry) exec_args=(-input "$scans" -output "$2") ;;
+  pcl_rast_localize)
+    exec_args=(-session "$work/session" -input "$scans" -output "$2" -software-render -quiet) ;;
   pcl_rast_simulate) exec_args=(-path loop -frames 60 -output "$2") ;;
   esac
   exec "$tools/$1" "${exec_args[@]}"
@@ -50,7 +53,9 @@ check_set() { # tool out
   "$tools/pcl_rast_eval" -check-output "$2"
 }
 
-for tool in pcl_rast_slam pcl_rast_odometry pcl_rast_simulate; do
+"$tools/pcl_rast_slam" -input "$scans" -output "$work/session_run" -save-session "$work/session" \
+  -software-render -quiet > "$work/session.log" 2>&1 || { cat "$work/session.log"; exit 2; }
+for tool in pcl_rast_slam pcl_rast_odometry pcl_rast_localize pcl_rast_simulate; do
   out="$work/$tool"
   ms=$(timed_run "$tool" "$out")
   echo "== $tool: a complete run takes $ms ms"

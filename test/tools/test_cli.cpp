@@ -1,9 +1,14 @@
 // The tools' shared command-line parser: strict flags, defaults, errors.
 #include "cli.h"
+#include "stop_signals.h"
 
 #include <gtest/gtest.h>
 
+#include <csignal>
+#include <optional>
 #include <string>
+#include <sys/wait.h>
+#include <unistd.h>
 #include <vector>
 
 namespace {
@@ -129,4 +134,47 @@ TEST(RunTool, MapsExceptionsToExitCodes)
   EXPECT_EQ(runTool("t", []() -> int { throw std::runtime_error("disk"); }), kExitIoError);
   const std::string err = testing::internal::GetCapturedStderr();
   EXPECT_NE(err.find("t: error: disk"), std::string::npos) << err;
+}
+
+/// A second stop signal while the outputs are moved into place (DeferStopExit alive)
+/// ends the process only once they are all moved; without the guard it ends at once.
+/// Each case runs in a child process: the handlers are process-wide.
+TEST(StopSignals, ASecondSignalWaitsForTheOutputsToBeMoved)
+{
+  const auto child = [](bool guarded) {
+    int fds[2];
+    if (::pipe(fds) != 0)
+      return std::make_pair(-1, std::string());
+    const pid_t pid = ::fork();
+    if (pid == 0) {
+      ::close(fds[0]);
+      pcl_rast_tools::installStopSignals();
+      std::raise(SIGTERM); // the first: a stop request
+      if (!pcl_rast_tools::stopRequested())
+        ::_exit(10);
+      {
+        std::optional<pcl_rast_tools::DeferStopExit> defer;
+        if (guarded)
+          defer.emplace();
+        std::raise(SIGTERM); // the second, "while publishing"
+        (void)!::write(fds[1], "moved", 5); // reached only when the exit waits
+      }
+      ::_exit(0); // never reached when a second signal came
+    }
+    ::close(fds[1]);
+    std::string out;
+    char buf[16];
+    for (ssize_t n; (n = ::read(fds[0], buf, sizeof buf)) > 0;)
+      out.append(buf, static_cast<std::size_t>(n));
+    ::close(fds[0]);
+    int status = 0;
+    ::waitpid(pid, &status, 0);
+    return std::make_pair(WIFEXITED(status) ? WEXITSTATUS(status) : -1, out);
+  };
+  const auto guarded = child(true);
+  EXPECT_EQ(guarded.first, 128 + SIGTERM);
+  EXPECT_EQ(guarded.second, "moved");
+  const auto unguarded = child(false);
+  EXPECT_EQ(unguarded.first, 128 + SIGTERM);
+  EXPECT_EQ(unguarded.second, "");
 }

@@ -2,6 +2,7 @@
 /// \brief Staged, all-or-nothing output folders (output_set.h).
 
 #include "output_set.h"
+#include "stop_signals.h"
 
 #include <algorithm>
 #include <pcl/rast/file_checksum.h>
@@ -267,6 +268,7 @@ OutputSet::publish(nlohmann::json& summary)
           return f["name"] == name;
         }))
       stale.push_back(name);
+  const DeferStopExit defer; // a second signal now ends the process after the moves
   try {
     moveIntoPlace(staging_, dir_, stale);
   } catch (const fs::filesystem_error& e) {

@@ -14,17 +14,26 @@ namespace pcl_rast_tools {
 namespace {
 
 std::atomic<int> g_stop_signal{0};
-static_assert(std::atomic<int>::is_always_lock_free,
-              "the handler needs a lock-free flag");
+std::atomic<bool> g_defer_exit{false};   ///< a DeferStopExit lives (outputs moving)
+std::atomic<int> g_deferred_signal{0};   ///< a second signal that came meanwhile
+static_assert(std::atomic<int>::is_always_lock_free && std::atomic<bool>::is_always_lock_free,
+              "the handler needs lock-free flags");
 
 extern "C" void
 onStopSignal(int signal_number)
 {
   // A second signal: the user means it. _exit is async-signal-safe and runs no
-  // destructors, so no half-written file is renamed over a complete one.
+  // destructors, so no half-written file is renamed over a complete one. While the
+  // outputs are being moved into place it waits for the last rename (DeferStopExit):
+  // ending there would leave half the new set beside half the old one.
   int expected = 0;
-  if (!g_stop_signal.compare_exchange_strong(expected, signal_number))
-    ::_exit(128 + signal_number);
+  if (g_stop_signal.compare_exchange_strong(expected, signal_number))
+    return;
+  if (g_defer_exit.load()) {
+    g_deferred_signal.store(signal_number);
+    return;
+  }
+  ::_exit(128 + signal_number);
 }
 
 } // namespace
@@ -81,6 +90,18 @@ reportStop(const char* tool, std::size_t frames)
                "\n%s: %s after %zu frames; writing the results so far (a second signal ends "
                "at once and keeps the previous output)\n",
                tool, stopSignalName(), frames);
+}
+
+DeferStopExit::DeferStopExit()
+{
+  g_defer_exit.store(true);
+}
+
+DeferStopExit::~DeferStopExit()
+{
+  g_defer_exit.store(false);
+  if (const int s = g_deferred_signal.load())
+    ::_exit(128 + s);
 }
 
 } // namespace pcl_rast_tools

@@ -23,6 +23,19 @@ int stopSignal();
 /// \brief The signal's name ("SIGTERM"), or "" when none came.
 const char* stopSignalName();
 
+/// \brief While one lives, a second stop signal does not end the process at once: the
+/// exit (128 + signal) waits until it is destroyed. OutputSet::publish holds one while
+/// it moves the files into place (a few renames), so the folder holds the complete new
+/// set, not a mix, when the process ends.
+class DeferStopExit
+{
+public:
+  DeferStopExit();
+  ~DeferStopExit();
+  DeferStopExit(const DeferStopExit&) = delete;
+  DeferStopExit& operator=(const DeferStopExit&) = delete;
+};
+
 /// \brief Tell the user on stderr that \a tool stops after \a frames on the signal and
 /// writes what it has.
 void reportStop(const char* tool, std::size_t frames);
