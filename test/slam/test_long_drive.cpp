@@ -22,6 +22,14 @@ using namespace pcl::rast;
 
 constexpr int kFrames = 3100;
 constexpr double kLaps = 5.0;
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+/// Under the sanitizers the threaded run drives 2.1 laps (1300 scans, loops closed on
+/// the second lap): the same stages, spills and releases, in 40 % of the time (it took
+/// 3.6 minutes under ASan, the longest test there). The full drive runs without them.
+constexpr int kThreadedFrames = 1300;
+#else
+constexpr int kThreadedFrames = kFrames;
+#endif
 
 /// VLP-16 (cheap to simulate and track) around a 620 m loop at 1 m per scan.
 std::unique_ptr<LidarSimulator>
@@ -98,17 +106,19 @@ drive(const SlamParams& params, int frames, const RastSlam::KeyFrameObserver& ob
 }
 
 void
-expectLongDriveFinishesOnSO3(bool deterministic)
+expectLongDriveFinishesOnSO3(bool deterministic, int frames)
 {
-  const DriveResult r = drive(longDriveParams(deterministic), kFrames);
+  const DriveResult r = drive(longDriveParams(deterministic), frames);
   ASSERT_TRUE(r.error.empty()) << r.error;
-  ASSERT_EQ(r.frame_poses.size(), static_cast<std::size_t>(kFrames));
-  EXPECT_GE(r.stats.keyframes, 3000u);
-  EXPECT_GE(r.stats.pose_graph_runs, 3u) << "the revisits must close loops";
+  ASSERT_EQ(r.frame_poses.size(), static_cast<std::size_t>(frames));
+  // A key-frame at nearly every scan; loops on every lap after the first.
+  EXPECT_GE(r.stats.keyframes, static_cast<std::size_t>(frames - 100));
+  const std::size_t min_loops = frames >= kFrames ? 3 : 1;
+  EXPECT_GE(r.stats.pose_graph_runs, min_loops) << "the revisits must close loops";
   std::size_t active = 0;
   for (const auto& e : r.loops)
     active += e.active;
-  EXPECT_GE(active, 3u);
+  EXPECT_GE(active, min_loops);
   EXPECT_LE(maxRotationError(r.keyframe_poses), 1e-9);
   EXPECT_LE(maxRotationError(r.frame_poses), 1e-9);
   const EvaluationResult ev = evaluateTrajectory(r.frame_poses, r.gt);
@@ -122,7 +132,7 @@ expectLongDriveFinishesOnSO3(bool deterministic)
 
 TEST(LongDrive, ThreadedRunOfThousandsOfKeyFramesFinishesOnSO3)
 {
-  expectLongDriveFinishesOnSO3(false);
+  expectLongDriveFinishesOnSO3(false, kThreadedFrames);
 }
 
 TEST(LongDrive, DeterministicRunOfThousandsOfKeyFramesFinishesOnSO3)
@@ -133,7 +143,7 @@ TEST(LongDrive, DeterministicRunOfThousandsOfKeyFramesFinishesOnSO3)
   // deterministic mode, under the sanitizers too.
   GTEST_SKIP() << "the deterministic long drive runs without sanitizers only";
 #endif
-  expectLongDriveFinishesOnSO3(true);
+  expectLongDriveFinishesOnSO3(true, kFrames);
 }
 
 /// An exception in the loop-closing thread (injected through the key-frame observer)
