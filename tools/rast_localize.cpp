@@ -15,6 +15,7 @@
 
 #include <pcl/io/pose_io.h>
 #include <pcl/io/sequence_reader.h>
+#include <pcl/registration/voxel_hash_map.h>
 #include <pcl/slam/session.h>
 #include <pcl/slam/session_localizer.h>
 #include <pcl/visualization/map_render.h>
@@ -37,7 +38,6 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
-#include <unordered_set>
 #include <vector>
 
 namespace {
@@ -74,7 +74,7 @@ pcl::PointCloud<pcl::PointXYZI>
 sessionMap(const rast::Session& session, double leaf_m, std::size_t& total)
 {
   pcl::PointCloud<pcl::PointXYZI> map;
-  std::unordered_set<std::uint64_t> seen;
+  rast::VoxelOccupancy occupied(leaf_m); // the first point of each voxel is kept
   total = 0;
   for (const rast::KeyFrame::Ptr& kf : session.keyframes) {
     if (!kf->cloud)
@@ -83,11 +83,7 @@ sessionMap(const rast::Session& session, double leaf_m, std::size_t& total)
     for (const auto& p : kf->cloud->points) {
       ++total;
       const Eigen::Vector3f w = T * p.getVector3fMap();
-      const auto key = [&](float c) {
-        return static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(c / leaf_m)) &
-                                          0x1FFFFF);
-      };
-      if (!seen.insert(key(w.x()) | key(w.y()) << 21 | key(w.z()) << 42).second)
+      if (!occupied.insert(w))
         continue;
       pcl::PointXYZI q = p;
       q.getVector3fMap() = w;
