@@ -4,7 +4,9 @@
 #   - a TSan build runs the threaded SLAM tests (RastSlam.* in threaded mode, the
 #     pcl_rast_slam tool, local mapping).
 # Every report halts its test (halt_on_error); the only suppressions are for the named
-# third-party libraries in scripts/sanitizers/*.supp.
+# third-party libraries in scripts/sanitizers/*.supp. One file of the project is built
+# without the sanitizers: the simulator's ray casting (simulation/CMakeLists.txt), which
+# is test-bed arithmetic and was a third of the sanitized suite's time.
 #
 #   scripts/run_sanitizers.sh [asan|tsan]...   (default: both)
 set -euo pipefail
@@ -14,10 +16,13 @@ kinds=("$@")
 supp="$root/scripts/sanitizers"
 jobs="$(nproc)"
 
+# The libraries and tools build at -O1; the tests' own code (glue around them) at -O0,
+# which compiles a test file a quarter faster under ASan (16 s -> 12 s).
 configure() { # build_dir flags
   cmake -S "$root" -B "$1" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPCL_RAST_BUILD_TESTS=ON \
     -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g1 -fno-omit-frame-pointer" \
-    -DPCL_RAST_TEST_OPTIMIZATION="-O1" \
+    -DPCL_RAST_TEST_OPTIMIZATION="-O0" \
+    "-DPCL_RAST_RAY_CASTING_FLAGS=-fno-sanitize=all;-O2" \
     -DCMAKE_CXX_FLAGS="$2" -DCMAKE_EXE_LINKER_FLAGS="$2" -DCMAKE_SHARED_LINKER_FLAGS="$2" \
     > "$1.configure.log" 2>&1
 }
