@@ -77,8 +77,8 @@ sessionMap(const rast::Session& session, double leaf_m, std::size_t& total)
   rast::VoxelOccupancy occupied(leaf_m); // the first point of each voxel is kept
   total = 0;
   for (const rast::KeyFrame::Ptr& kf : session.keyframes) {
-    if (!kf->cloud)
-      continue;
+    if (!kf->cloud || rast::sessionComponentOf(session, kf->id) != 0)
+      continue; // a separate map of the session, in another frame
     const Eigen::Isometry3f T = kf->T_world_keyframe.cast<float>();
     for (const auto& p : kf->cloud->points) {
       ++total;
@@ -203,6 +203,7 @@ run(int argc, char** argv)
   std::optional<ProgressBar> bar;
   if (!quiet)
     bar.emplace("Localize", reader.size());
+  const pcl::StopWatch run_watch;
   for (std::size_t i = 0; i < reader.size(); ++i) {
     if (stopRequested()) {
       stopped_at = i;
@@ -243,6 +244,7 @@ run(int argc, char** argv)
   }
   if (bar)
     bar->finish();
+  const double wall_s = run_watch.getTimeSeconds();
   if (stopped_at == 0) {
     std::fprintf(stderr, "pcl_rast_localize: %s before the first scan; no output was written\n",
                  stopSignalName());
@@ -292,6 +294,10 @@ run(int argc, char** argv)
   summary["jumps"] = jumps;
   summary["skipped_frames"] = skipped;
   summary["median_frame_ms"] = sorted.empty() ? 0.0 : sorted[sorted.size() / 2];
+  summary["wall_s"] = wall_s; // reading and localizing the scans, not loading or writing
+  summary["fps"] = wall_s > 0.0 ? poses.size() / wall_s : 0.0;
+  summary["peak_rss_mb"] = peakRssMb();
+  summary["cpu_s"] = processCpuS();
   summary["interrupted"] = stopped_at < reader.size();
   summary["stop_signal"] = stopRequested() ? json(stopSignalName()) : json(nullptr);
   summary["deskew"] = {{"mode", rast::toString(localizer_params.odometry.deskew.mode)},

@@ -90,8 +90,19 @@ checkReplaceable(const fs::path& dir)
 {
   std::error_code ec;
   const fs::file_status status = fs::status(dir, ec);
-  if (!fs::exists(status))
+  if (!fs::exists(status)) {
+    // It will be created: the nearest existing folder above it must be a folder.
+    for (fs::path up = dir.parent_path(); !up.empty() && up != up.parent_path();
+         up = up.parent_path()) {
+      const fs::file_status s = fs::status(up, ec);
+      if (!fs::exists(s))
+        continue;
+      if (!fs::is_directory(s))
+        throw SessionError(dir.string(), up.string() + " is not a folder");
+      break;
+    }
     return;
+  }
   if (!fs::is_directory(status))
     throw SessionError(dir.string(), "exists and is not a folder");
   if (fs::is_empty(dir, ec) || fs::exists(dir / kJsonName))
@@ -154,9 +165,7 @@ public:
                   {"num_features", 0}};
     if (cloud && !cloud->empty()) {
       const std::string name = "keyframes/" + numbered(kf.id) + ".pcd";
-      writePcd(name, [&](const std::string& path) {
-        return pcl::io::savePCDFileBinary(path, *cloud);
-      });
+      writePcd(name, *cloud);
       entry["cloud"] = name;
       entry["points"] = cloud->size();
     }
@@ -164,9 +173,7 @@ public:
       pcl::PointCloud<ORBSignature256> signatures;
       toSignatureCloud(kf.features, signatures);
       const std::string name = "features/" + numbered(kf.id) + ".pcd";
-      writePcd(name, [&](const std::string& path) {
-        return pcl::io::savePCDFileBinary(path, signatures);
-      });
+      writePcd(name, signatures);
       entry["features"] = name;
       entry["num_features"] = signatures.size();
     }
@@ -175,7 +182,10 @@ public:
 
   /// Write the graph and session.json, then put the folder in place.
   void
-  commit(const PoseGraph& graph, const std::vector<LoopEdge>& loops, const SessionInfo& info)
+  commit(const PoseGraph& graph,
+         const std::vector<LoopEdge>& loops,
+         const SessionInfo& info,
+         const std::vector<SessionDrive>& drives)
   {
     if (graph.numNodes() != keyframes_.size())
       throw std::invalid_argument("saveSession: the pose graph has " +
@@ -203,6 +213,14 @@ public:
                              {"candidate", loop.candidate},
                              {"num_inliers", loop.num_inliers},
                              {"T_candidate_query", poseJson(loop.T_candidate_query)}});
+    json drive_list = json::array();
+    for (const SessionDrive& d : drives)
+      drive_list.push_back({{"first_keyframe", d.first_keyframe},
+                            {"keyframes", d.num_keyframes},
+                            {"frames", d.num_frames},
+                            {"created_by", d.created_by},
+                            {"input", d.input},
+                            {"component", d.component}});
     const json session = {{"format", kFormatName},
                           {"version", kSessionFormatVersion},
                           {"created_by", info.created_by},
@@ -212,6 +230,7 @@ public:
                           {"graph", kGraphName},
                           {"keyframes", keyframes_},
                           {"loops", loop_list},
+                          {"drives", drive_list},
                           {"files", files_}};
     const std::string json_path = (staging_ / kJsonName).string();
     try {
@@ -226,21 +245,34 @@ public:
   }
 
 private:
+  /// Write \a cloud as a binary PCD (PCL's header and layout) through the project's
+  /// atomic writer: PCL's own writer reports a full disk without its cause.
+  template <typename PointT>
   void
-  writePcd(const std::string& name, const std::function<int(const std::string&)>& save)
+  writePcd(const std::string& name, const pcl::PointCloud<PointT>& cloud)
   {
     const fs::path path = staging_ / name;
-    errno = 0;
-    int result = -1;
+    // What pcl::PCDWriter::writeBinary writes: its header, then each point's fields
+    // packed (no padding).
+    std::string content = pcl::PCDWriter::generateHeader<PointT>(cloud) + "DATA binary\n";
+    std::vector<pcl::PCLPointField> fields;
+    std::size_t point_bytes = 0;
+    for (const pcl::PCLPointField& f : pcl::getFields<PointT>())
+      if (f.name != "_") {
+        fields.push_back(f);
+        point_bytes += f.count * pcl::getFieldSize(f.datatype);
+      }
+    content.reserve(content.size() + cloud.size() * point_bytes);
+    for (const PointT& point : cloud.points) {
+      const char* base = reinterpret_cast<const char*>(&point);
+      for (const pcl::PCLPointField& f : fields)
+        content.append(base + f.offset, f.count * pcl::getFieldSize(f.datatype));
+    }
     try {
-      result = save(path.string());
+      writeFileAtomically(path.string(), content);
     } catch (const std::exception& e) {
       throw SessionError(path.string(), std::string("cannot write: ") + e.what());
     }
-    if (result < 0)
-      throw SessionError(path.string(), std::string("cannot write") +
-                                            (errno != 0 ? ": " + std::string(std::strerror(errno))
-                                                        : std::string()));
     syncPath(path, false);
     addFile(name);
   }
@@ -404,6 +436,79 @@ checkSessionDestination(const std::string& dir)
   checkReplaceable(sessionFolder(dir));
 }
 
+namespace {
+
+/// The drives of \a session, or its key-frames as the one drive when it lists none.
+std::vector<SessionDrive>
+drivesOrDefault(const Session& session)
+{
+  if (!session.drives.empty())
+    return session.drives;
+  SessionDrive all;
+  all.num_keyframes = session.keyframes.size();
+  all.num_frames = session.info.num_frames;
+  all.created_by = session.info.created_by;
+  return {all};
+}
+
+/// A session's drives must cover its key-frames in order, each once.
+void
+checkDrives(const std::vector<SessionDrive>& drives, std::size_t num_keyframes,
+            const std::function<void(const std::string&)>& fail)
+{
+  std::size_t next = 0;
+  for (const SessionDrive& d : drives) {
+    if (d.first_keyframe != next || d.component < 0)
+      fail("drive at key-frame " + std::to_string(d.first_keyframe) + " (component " +
+           std::to_string(d.component) + ") does not follow key-frame " + std::to_string(next));
+    next += d.num_keyframes;
+  }
+  if (next != num_keyframes)
+    fail("the drives cover " + std::to_string(next) + " key-frames of " +
+         std::to_string(num_keyframes));
+}
+
+} // namespace
+
+int
+sessionComponentOf(const Session& session, KeyFrameId id)
+{
+  if (id >= session.keyframes.size())
+    throw std::out_of_range("sessionComponentOf: key-frame " + std::to_string(id) + " of " +
+                            std::to_string(session.keyframes.size()));
+  for (const SessionDrive& d : session.drives)
+    if (id >= d.first_keyframe && id < d.first_keyframe + d.num_keyframes)
+      return d.component;
+  return 0;
+}
+
+Session
+sessionFromSlam(const RastSlam& slam, SessionInfo info)
+{
+  const SlamMap::ConstPtr map = slam.map();
+  Session session;
+  const PoseVector poses = map->keyFramePoses();
+  for (const KeyFrame::Ptr& kf : map->keyFrames()) {
+    auto copy = std::make_shared<KeyFrame>();
+    copy->id = kf->id;
+    copy->frame_index = kf->frame_index;
+    copy->timestamp_s = kf->timestamp_s;
+    copy->T_world_keyframe = poses.at(kf->id);
+    copy->T_previous_keyframe = map->odometryEdge(kf->id); // as local BA left it
+    copy->odometry_map_scans = kf->odometry_map_scans;
+    copy->features = kf->features;
+    copy->cloud = map->keyFrameCloud(kf->id);
+    session.keyframes.push_back(std::move(copy));
+  }
+  session.loops = map->loopEdges();
+  session.graph = keyFrameGraph(*map, session.loops, slam.params().loop_closing);
+  if (info.num_frames == 0)
+    info.num_frames = map->numFrames();
+  session.info = std::move(info);
+  session.drives = drivesOrDefault(session);
+  return session;
+}
+
 void
 saveSession(const RastSlam& slam, const std::string& dir, SessionInfo info)
 {
@@ -419,7 +524,11 @@ saveSession(const RastSlam& slam, const std::string& dir, SessionInfo info)
   const std::vector<LoopEdge> loops = map->loopEdges();
   if (info.num_frames == 0)
     info.num_frames = map->numFrames();
-  writer.commit(keyFrameGraph(*map, loops, slam.params().loop_closing), loops, info);
+  Session shape; // the one drive, without holding the key-frames
+  shape.info = info;
+  shape.keyframes.resize(keyframes.size());
+  writer.commit(keyFrameGraph(*map, loops, slam.params().loop_closing), loops, info,
+                drivesOrDefault(shape));
 }
 
 void
@@ -431,7 +540,11 @@ saveSession(const Session& session, const std::string& dir)
       throw std::invalid_argument("saveSession: a null key-frame");
     writer.addKeyFrame(*kf, kf->T_world_keyframe, kf->cloud);
   }
-  writer.commit(session.graph, session.loops, session.info);
+  const std::vector<SessionDrive> drives = drivesOrDefault(session);
+  checkDrives(drives, session.keyframes.size(), [](const std::string& why) {
+    throw std::invalid_argument("saveSession: " + why);
+  });
+  writer.commit(session.graph, session.loops, session.info, drives);
 }
 
 Session
@@ -521,6 +634,21 @@ loadSession(const std::string& dir_name, const SessionLoadOptions& options)
         throw SessionError(jp, "a loop between unknown key-frames");
       result.loops.push_back(loop);
     }
+    if (session.contains("drives")) { // absent in sessions saved before multi-session
+      for (const json& entry : session.at("drives")) {
+        SessionDrive d;
+        d.first_keyframe = entry.at("first_keyframe").get<KeyFrameId>();
+        d.num_keyframes = entry.at("keyframes").get<std::size_t>();
+        d.num_frames = entry.value("frames", std::size_t{0});
+        d.created_by = entry.value("created_by", "");
+        d.input = entry.value("input", "");
+        d.component = entry.value("component", 0);
+        result.drives.push_back(d);
+      }
+      checkDrives(result.drives, result.keyframes.size(),
+                  [&jp](const std::string& why) { throw SessionError(jp, why); });
+    }
+    result.drives = drivesOrDefault(result);
   } catch (const json::exception& e) {
     throw SessionError(jp, std::string("malformed: ") + e.what());
   }

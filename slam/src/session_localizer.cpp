@@ -72,6 +72,8 @@ SessionLocalizer::SessionLocalizer(Session session, const SessionLocalizerParams
   for (const KeyFrame::Ptr& kf : impl_->session.keyframes) {
     if (!kf || kf->features.empty() || !kf->cloud)
       continue; // nothing to match against (features released, or clouds not loaded)
+    if (sessionComponentOf(impl_->session, kf->id) != 0)
+      continue; // a drive that never met the map: its poses are in another frame
     impl_->detector->addKeyFrame(kf, kf->T_world_keyframe);
     ++impl_->indexed;
   }
@@ -137,8 +139,7 @@ SessionLocalizer::place(const KeyFrame& query_in) const
     if (p.candidates_verified >= impl_->params.max_candidates)
       break;
     if (score < impl_->params.verification.min_appearance_score)
-      break; // ranked by score per feature: a later one can still score more, but
-             // below the minimum here means a weak match throughout
+      continue; // ranked by score per feature: a later one can still have enough
     ++p.candidates_verified;
     const KeyFrame& candidate = *impl_->session.keyframes.at(id);
     const LoopVerification v = detector.verify(query, candidate, Pose3d::Identity(), no_guess);
@@ -259,8 +260,9 @@ struct MapLocalization::Impl
   {
     std::vector<std::pair<double, const KeyFrame*>> near;
     for (const KeyFrame::Ptr& kf : localizer.session().keyframes) {
-      if (!kf->cloud || kf->cloud->empty())
-        continue;
+      if (!kf->cloud || kf->cloud->empty() ||
+          sessionComponentOf(localizer.session(), kf->id) != 0)
+        continue; // no cloud, or a separate map in another frame
       const double d = (kf->T_world_keyframe.translation() - T_world.translation()).norm();
       if (d <= params.map_radius_m)
         near.emplace_back(d, kf.get());

@@ -11,6 +11,7 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <functional>
 #include <limits>
 #include <stdexcept>
 #include <unistd.h>
@@ -253,14 +254,24 @@ SlamMap::mapCloudEntries() const
   return entries;
 }
 
-void
-SlamMap::forEachMapTile(double leaf_m, const MapTileSink& sink) const
+namespace {
+
+/// One key-frame's cloud for the tile builder: its pose, the largest distance of a
+/// point from its origin, and a way to visit its points (key-frame frame, intensity).
+struct TileSource
 {
-  if (!(leaf_m > 0.0) || !std::isfinite(leaf_m))
-    throw std::invalid_argument("SlamMap::forEachMapTile: leaf_m must be > 0, got " +
-                                std::to_string(leaf_m));
-  const std::vector<KeyFrameEntry> entries = mapCloudEntries();
-  const auto res = static_cast<float>(CompactCloud::kResolutionM);
+  using PointVisitor = std::function<void(const Eigen::Vector3d&, float)>;
+  Pose3d T_world_keyframe = Pose3d::Identity();
+  double radius_m = 0.0;
+  std::function<void(const PointVisitor&)> for_each_point;
+};
+
+/// The map of \a sources, voxelized with \a leaf_m one square world tile at a time.
+void
+forEachTile(const std::vector<TileSource>& sources,
+            double leaf_m,
+            const SlamMap::MapTileSink& sink)
+{
   // Square tiles of whole voxels in the world's x-y plane, each voxelized on its own:
   // a voxel lies in exactly one tile, so the tiles together equal one global grid.
   const double inv_leaf = 1.0 / leaf_m;
@@ -272,9 +283,9 @@ SlamMap::forEachMapTile(double leaf_m, const MapTileSink& sink) const
   };
   // The tiles each key-frame's points can reach (its position +- its cloud's radius).
   std::map<std::pair<std::int64_t, std::int64_t>, std::vector<std::size_t>> tiles;
-  for (std::size_t k = 0; k < entries.size(); ++k) {
-    const Eigen::Vector3d c = entries[k].T_world_keyframe.translation();
-    const double r = entries[k].map_cloud_radius_m;
+  for (std::size_t k = 0; k < sources.size(); ++k) {
+    const Eigen::Vector3d c = sources[k].T_world_keyframe.translation();
+    const double r = sources[k].radius_m;
     for (auto tx = tileOf(c.x() - r); tx <= tileOf(c.x() + r); ++tx)
       for (auto ty = tileOf(c.y() - r); ty <= tileOf(c.y() + r); ++ty)
         tiles[{tx, ty}].push_back(k);
@@ -294,19 +305,19 @@ SlamMap::forEachMapTile(double leaf_m, const MapTileSink& sink) const
         mergeVoxelSamples(samples);
         merge_at = std::max(kMinSamplesBeforeMerge, 2 * samples.size());
       }
-      const KeyFrameEntry& e = entries[k];
-      const Eigen::Isometry3d& T = e.T_world_keyframe;
-      for (const CompactCloud::Point& q : loadMapCloud(e).points) {
-        const Eigen::Vector3d p = T * Eigen::Vector3d(q.x * res, q.y * res, q.z * res);
-        if (tileOf(p.x()) != tile.first || tileOf(p.y()) != tile.second)
-          continue;
+      const Eigen::Isometry3d& T = sources[k].T_world_keyframe;
+      const std::pair<std::int64_t, std::int64_t> here = tile;
+      sources[k].for_each_point([&](const Eigen::Vector3d& q, float intensity) {
+        const Eigen::Vector3d p = T * q;
+        if (tileOf(p.x()) != here.first || tileOf(p.y()) != here.second)
+          return;
         samples.push_back({voxelKeyOf(p, inv_leaf),
                            static_cast<float>(p.x()),
                            static_cast<float>(p.y()),
                            static_cast<float>(p.z()),
-                           q.intensity * e.intensity_scale,
+                           intensity,
                            1});
-      }
+      });
     }
     if (samples.empty())
       continue;
@@ -314,6 +325,59 @@ SlamMap::forEachMapTile(double leaf_m, const MapTileSink& sink) const
     appendVoxelMeans(samples, out);
     sink(out);
   }
+}
+
+void
+checkLeaf(const char* caller, double leaf_m)
+{
+  if (!(leaf_m > 0.0) || !std::isfinite(leaf_m))
+    throw std::invalid_argument(std::string(caller) + ": leaf_m must be > 0, got " +
+                                std::to_string(leaf_m));
+}
+
+} // namespace
+
+void
+SlamMap::forEachMapTile(double leaf_m, const MapTileSink& sink) const
+{
+  checkLeaf("SlamMap::forEachMapTile", leaf_m);
+  const std::vector<KeyFrameEntry> entries = mapCloudEntries();
+  const auto res = static_cast<float>(CompactCloud::kResolutionM);
+  std::vector<TileSource> sources(entries.size());
+  for (std::size_t k = 0; k < entries.size(); ++k) {
+    const KeyFrameEntry& e = entries[k];
+    sources[k].T_world_keyframe = e.T_world_keyframe;
+    sources[k].radius_m = e.map_cloud_radius_m;
+    sources[k].for_each_point = [this, &e, res](const TileSource::PointVisitor& visit) {
+      for (const CompactCloud::Point& q : loadMapCloud(e).points)
+        visit(Eigen::Vector3d(q.x * res, q.y * res, q.z * res), q.intensity * e.intensity_scale);
+    };
+  }
+  forEachTile(sources, leaf_m, sink);
+}
+
+void
+forEachSessionMapTile(const std::vector<KeyFrame::Ptr>& keyframes,
+                      double leaf_m,
+                      const SlamMap::MapTileSink& sink)
+{
+  checkLeaf("forEachSessionMapTile", leaf_m);
+  std::vector<TileSource> sources;
+  for (const KeyFrame::Ptr& kf : keyframes) {
+    if (!kf || !kf->cloud || kf->cloud->empty())
+      continue;
+    TileSource source;
+    source.T_world_keyframe = kf->T_world_keyframe;
+    for (const auto& p : kf->cloud->points)
+      source.radius_m = std::max(source.radius_m, p.getVector3fMap().cast<double>().norm());
+    const pcl::PointCloud<pcl::PointXYZI>::ConstPtr cloud = kf->cloud;
+    source.for_each_point = [cloud](const TileSource::PointVisitor& visit) {
+      for (const auto& p : cloud->points)
+        visit(p.getVector3fMap().cast<double>(), p.intensity);
+    };
+    sources.push_back(std::move(source));
+  }
+  forEachTile(sources, leaf_m, sink);
 }
 
 pcl::PointCloud<pcl::PointXYZI>::Ptr

@@ -299,6 +299,14 @@ TEST(Session, ASaveReplacesASessionWholeOrLeavesItAsItWas)
   // A smaller session replaces it whole: no file of the earlier one is left.
   Session second = first;
   second.keyframes.resize(2);
+  // Its drives no longer match its key-frames: an error naming them ...
+  try {
+    saveSession(second, dir.string());
+    ADD_FAILURE() << "drives that cover other key-frames were saved";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("drives cover"), std::string::npos) << e.what();
+  }
+  second.drives.clear(); // ... until they are left out (all key-frames: one drive)
   PoseGraph graph;
   graph.addNode(0, second.keyframes[0]->T_world_keyframe, true);
   graph.addNode(1, second.keyframes[1]->T_world_keyframe);
@@ -322,6 +330,13 @@ TEST(Session, ASaveReplacesASessionWholeOrLeavesItAsItWas)
   EXPECT_THROW(saveSession(second, scans.string()), SessionError);
   EXPECT_EQ(readText(scans / "000000.bin"), "not a session");
   EXPECT_NO_THROW(checkSessionDestination((parent / "new").string()));
+  // A folder that cannot be created, below a file: refused before any work.
+  try {
+    checkSessionDestination((scans / "000000.bin" / "deeper" / "session").string());
+    ADD_FAILURE() << "a session below a file was accepted";
+  } catch (const SessionError& e) {
+    EXPECT_NE(std::string(e.what()).find("is not a folder"), std::string::npos) << e.what();
+  }
 }
 
 } // namespace

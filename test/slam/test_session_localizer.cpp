@@ -9,6 +9,7 @@
 
 #include <gtest/gtest.h>
 
+#include "simulated_drive.h"
 #include "temp_cleanup.h"
 
 #include <algorithm>
@@ -32,18 +33,7 @@ simulateFrame(const LidarSimulator& sim, std::size_t i)
   return cloud;
 }
 
-std::unique_ptr<LidarSimulator>
-simulator(PathType type, int frames, double revisit, std::uint64_t seed)
-{
-  PathParams path;
-  path.type = type;
-  path.num_frames = frames;
-  path.revisit_fraction = revisit;
-  LidarSimulatorParams params;
-  params.seed = seed;
-  params.num_threads = 2;
-  return std::make_unique<LidarSimulator>(params, generatePath(path));
-}
+using pcl_rast_test::pathSimulator;
 
 double
 rotationErrorDeg(const Pose3d& a, const Pose3d& b)
@@ -69,7 +59,7 @@ MappedLoop
 mapLoop()
 {
   MappedLoop m;
-  m.sim = simulator(PathType::kLoop, 200, 0.25, 3);
+  m.sim = pathSimulator(PathType::kLoop, 200, 0.25, 3);
   SlamParams slam_params;
   slam_params.deterministic = true;
   RastSlam slam(slam_params);
@@ -128,7 +118,7 @@ TEST(SessionLocalizer, PlacesASecondPassWithNoPriorAndNothingOffTheMap)
   EXPECT_EQ(wrong, 0);
 
   // A world that was never mapped: nothing placed.
-  const auto elsewhere = simulator(PathType::kStraight, 40, 0.0, 9);
+  const auto elsewhere = pathSimulator(PathType::kStraight, 40, 0.0, 9);
   for (std::size_t i = 0; i < 40; i += 4) {
     const Placement p = localizer.place(simulateFrame(*elsewhere, i));
     EXPECT_FALSE(p.success) << "frame " << i << " of another world: " << p.message;

@@ -67,11 +67,29 @@ struct SessionInfo
   std::size_t num_frames = 0;           ///< input frames of the run
 };
 
+/// \brief One drive of a session: a run of consecutive key-frames. A session from one
+/// run has one; each multi-session merge (session_merge.h) appends the new drive's.
+struct SessionDrive
+{
+  KeyFrameId first_keyframe = 0; ///< its key-frames are first_keyframe.. + num_keyframes
+  std::size_t num_keyframes = 0;
+  std::size_t num_frames = 0;    ///< input frames of that run
+  std::string created_by;        ///< the program that made it
+  std::string input;             ///< its scan folder, when known
+  /// 0: anchored in the session's world frame (the first drive and every drive joined
+  /// to it by inter-session loops). Above 0: a drive that never met the map, a
+  /// separate map in its own frame (its first scan's); localization ignores it.
+  int component = 0;
+};
+
 /// \brief A saved session in memory.
 struct Session
 {
   int version = kSessionFormatVersion;
   SessionInfo info;
+  /// The drives, in key-frame order, covering every key-frame once. Empty in a session
+  /// built by hand: then all key-frames are one drive of component 0.
+  std::vector<SessionDrive> drives;
   /// Key-frames in id order (id == index): T_world_keyframe is the corrected pose,
   /// T_previous_keyframe the odometry edge, features and cloud as saved (a key-frame
   /// whose features the run had released has none).
@@ -80,6 +98,20 @@ struct Session
   /// The pose graph as saved (nodes = key-frame ids).
   PoseGraph graph;
 };
+
+/// \brief The component of key-frame \a id (SessionDrive::component; 0 when the session
+/// lists no drives). \throws std::out_of_range for an id beyond the key-frames.
+int
+sessionComponentOf(const Session& session, KeyFrameId id);
+
+/// \brief The merged map of \a keyframes that hold a cloud (those of a loaded or merged
+/// session), each at its T_world_keyframe, voxelized with \a leaf_m one square world
+/// tile at a time, as SlamMap::forEachMapTile does for a run.
+/// \throws std::invalid_argument unless leaf_m > 0.
+void
+forEachSessionMapTile(const std::vector<KeyFrame::Ptr>& keyframes,
+                      double leaf_m,
+                      const SlamMap::MapTileSink& sink);
 
 /// \brief The pose graph of a SLAM map's key-frames as loop closing optimizes it:
 /// nodes at the corrected poses (key-frame 0 fixed), odometry edges between
@@ -104,6 +136,12 @@ checkSessionDestination(const std::string& dir);
 /// changed in \a dir).
 void
 saveSession(const RastSlam& slam, const std::string& dir, SessionInfo info);
+
+/// \brief The finished \a slam as a session in memory (what saveSession(slam, ...) would
+/// write): key-frame clouds are expanded from the map's compact copies, key-frames whose
+/// features the run released have none.
+Session
+sessionFromSlam(const RastSlam& slam, SessionInfo info);
 
 /// \brief Save a session held in memory (a loaded or merged one) in \a dir, as above.
 /// \throws SessionError, or std::invalid_argument when key-frame ids are not 0..n-1 or
