@@ -8,6 +8,10 @@
 /// Without -input, a loop sequence is simulated into OUTPUT/simulated_input first (and
 /// its ground truth is used for -gt), so the tool runs out of the box.
 /// Ctrl-C stops reading; what was processed so far is finished and written.
+/// With -session DIR the drive extends a saved session (multi-session mapping): it is
+/// joined to the session's map by inter-session loops and optimized with its pose graph;
+/// poses and map.pcd are then in the session's world frame, and -save-session writes
+/// the merged session.
 
 #include "cli.h"
 #include "output_set.h"
@@ -21,6 +25,8 @@
 #include <pcl/slam/rast_slam.h>
 #include <pcl/io/sequence_reader.h>
 #include <pcl/slam/session.h>
+#include <pcl/slam/session_localizer.h>
+#include <pcl/slam/session_merge.h>
 #include <pcl/slam/slam_map.h>
 #include <pcl/evaluation/trajectory_evaluation.h>
 
@@ -35,6 +41,7 @@
 #include <cstdio>
 #include <deque>
 #include <filesystem>
+#include <functional>
 #include <iostream>
 #include <limits>
 #include <map>
@@ -157,53 +164,58 @@ private:
   pcl::PointCloud<pcl::PointXYZI> top_;
 };
 
-double
-peakRssMb()
-{
-  rusage usage{};
-  getrusage(RUSAGE_SELF, &usage);
-  return usage.ru_maxrss / 1024.0; // Linux: kilobytes
-}
+using pcl_rast_tools::peakRssMb;
+using pcl_rast_tools::processCpuS;
 
-/// User + system CPU time of the whole process so far [s].
-double
-processCpuS()
-{
-  rusage usage{};
-  getrusage(RUSAGE_SELF, &usage);
-  return usage.ru_utime.tv_sec + usage.ru_stime.tv_sec +
-         1e-6 * (usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
-}
-
-/// Save the finished run as a session (-save-session): the summary's "session" entry.
-/// A run that ended with an error saves none (its map may lack what the error cut off);
-/// a failed save throws (SessionError, exit 2) and the outputs are not published.
+/// Save the finished run, or the merged session of a multi-session run, in \a dir
+/// (-save-session): the summary's "session" entry. A run that ended with an error saves
+/// none (its map may lack what the error cut off). A failed save is reported there and
+/// in \a failure; the run's own outputs are still published, and the tool exits 2.
 json
-saveSessionOf(const rast::RastSlam& slam,
+saveSessionOf(const std::function<std::size_t()>& save,
               const std::string& dir,
-              rast::SensorPreset preset,
-              const json& parameters,
-              bool run_failed)
+              bool run_failed,
+              std::string& failure)
 {
   if (run_failed) {
     std::cerr << "pcl_rast_slam: the run failed; no session was saved in " << dir << "\n";
-    return {{"dir", dir}, {"saved", false}};
+    return {{"dir", dir}, {"saved", false}, {"error", "the run failed"}};
   }
   const auto start = std::chrono::steady_clock::now();
-  rast::SessionInfo info;
-  info.sensor_preset = rast::toString(preset);
-  info.created_by = "pcl_rast_slam";
-  info.parameters_json = parameters.dump(-1, ' ', false, json::error_handler_t::replace);
-  rast::saveSession(slam, dir, info);
+  std::size_t keyframes = 0;
+  try {
+    keyframes = save();
+  } catch (const std::exception& e) {
+    failure = std::string("the session was not saved: ") + e.what();
+    std::cerr << "pcl_rast_slam: error: " << failure << "\n";
+    return {{"dir", dir}, {"saved", false}, {"error", e.what()}};
+  }
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  std::cerr << "Saved session " << dir << " (" << slam.statistics().keyframes
-            << " key-frames, " << seconds << " s)\n";
+  std::cerr << "Saved session " << dir << " (" << keyframes << " key-frames, " << seconds
+            << " s)\n";
   return {{"dir", dir},
           {"saved", true},
-          {"keyframes", slam.statistics().keyframes},
+          {"keyframes", keyframes},
           {"format_version", rast::kSessionFormatVersion},
           {"save_s", seconds}};
+}
+
+/// Poses of the drive's frames on the merged map: each frame's pose relative to its
+/// reference key-frame, on that key-frame's merged pose.
+rast::PoseVector
+framePosesOnMap(const std::vector<rast::FrameRecord>& frames,
+                const rast::SessionMergeResult& merge)
+{
+  rast::PoseVector poses;
+  poses.reserve(frames.size());
+  for (const rast::FrameRecord& f : frames)
+    poses.push_back(f.reference_keyframe == rast::kNoKeyFrame
+                        ? rast::normalizedPose(merge.T_prior_drive * f.T_keyframe_lidar)
+                        : rast::normalizedPose(
+                              merge.drive_keyframe_poses.at(f.reference_keyframe) *
+                              f.T_keyframe_lidar));
+  return poses;
 }
 
 /// One scan read ahead by the reader thread, or the reason it could not be read.
@@ -326,7 +338,7 @@ int
 run(int argc, char** argv)
 {
   const rast::SlamParams defaults;
-  std::string input, output, gt_path, save_session, threads = defaults.deterministic ? "off" : "on";
+  std::string input, output, gt_path, save_session, session_dir, threads = defaults.deterministic ? "off" : "on";
   int first = 0, last = -1, stride = 1;
   bool no_loop = !defaults.loop_closing.enable;
   bool no_revisit_culling = !defaults.loop_closing.cull_revisits;
@@ -356,6 +368,11 @@ run(int argc, char** argv)
                    "also save the map as a session in this folder (key-frames, features, "
                    "pose graph; doc/session.md), for localization and later runs",
                    &save_session);
+  parser.addString("session",
+                   "extend this session (multi-session mapping, doc/session.md): the drive "
+                   "is joined to its map by inter-session loops and optimized with its pose "
+                   "graph; poses and map.pcd are then in the session's frame",
+                   &session_dir);
   parser.addInt("first", "first scan index", &first);
   parser.addInt("last", "last scan index, inclusive (-1: the last)", &last);
   parser.addInt("stride", "use every stride-th scan", &stride);
@@ -448,9 +465,35 @@ run(int argc, char** argv)
             << reader.size() << " selected"
             << (reader.timesPath().empty() ? "" : ", times from " + reader.timesPath())
             << "]\n";
+  // A session to extend: every file checked (version, preset, sizes, checksums) before
+  // any work. Its sensor preset is the run's unless -sensor names another (an error).
+  std::optional<rast::Session> prior;
+  double session_load_s = 0.0;
+  if (!session_dir.empty()) {
+    if (fs::weakly_canonical(output) == fs::weakly_canonical(session_dir))
+      throw std::invalid_argument("-output " + output + " is the -session folder");
+    const auto load_start = std::chrono::steady_clock::now();
+    rast::SessionLoadOptions load_options;
+    if (sensor != "auto")
+      load_options.expected_sensor_preset = sensor;
+    try {
+      prior = rast::loadSession(session_dir, load_options);
+    } catch (const rast::SessionError& e) {
+      throw std::runtime_error(std::string("bad session: ") + e.what());
+    }
+    session_load_s =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - load_start).count();
+    std::cerr << "Session " << session_dir << " [" << prior->keyframes.size()
+              << " key-frames, " << prior->drives.size() << " drive(s), sensor "
+              << prior->info.sensor_preset << ", loaded in " << session_load_s << " s]\n";
+    if (sensor == "auto")
+      sensor = prior->info.sensor_preset;
+  }
   std::string sensor_reason;
   const rast::SensorPreset preset =
       pcl_rast_tools::resolveSensorPreset(sensor, reader, sensor_reason);
+  if (prior && !parser.given("sensor"))
+    sensor_reason = "the session's";
   std::cerr << "Sensor preset " << rast::toString(preset) << " (" << sensor_reason << ")\n";
   rast::applySensorPreset(preset, params.odometry);
   std::string deskew_reason, deskew_timing;
@@ -464,6 +507,14 @@ run(int argc, char** argv)
     params.odometry.dense.degeneracy_min_support = degeneracy_support;
   if (!params.isValid(&why))
     throw std::logic_error("sensor preset made invalid parameters: " + why);
+  // The session's map indexed for placing the drive's key-frames on it (after the run).
+  std::unique_ptr<rast::SessionLocalizer> localizer;
+  if (prior) {
+    rast::SessionLocalizerParams localizer_params;
+    localizer_params.odometry = params.odometry;
+    localizer = std::make_unique<rast::SessionLocalizer>(std::move(*prior), localizer_params);
+    prior.reset();
+  }
 
   // Ground truth paired with the selected frames as pcl_rast_eval pairs poses_tum.txt
   // with it: a TUM file by timestamp (nearest within 0.01 s, each pose used once), a
@@ -605,9 +656,27 @@ run(int argc, char** argv)
   const double wall_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
 
+  // ---- multi-session: the drive joined to the session's map ----
+  std::optional<rast::SessionMergeResult> merge;
+  if (localizer && !run_error) {
+    rast::SessionInfo info;
+    info.sensor_preset = rast::toString(preset);
+    info.created_by = "pcl_rast_slam";
+    rast::Session drive = rast::sessionFromSlam(slam, info);
+    drive.drives.front().input = reader.scanFolder();
+    rast::SessionMergeParams merge_params;
+    merge_params.loop_closing = params.loop_closing;
+    merge_params.pose_graph = params.pose_graph;
+    merge = rast::mergeSessions(*localizer, drive, merge_params);
+    std::cerr << "Multi-session: " << merge->message << " (" << merge->time_ms / 1000.0
+              << " s)\n";
+  }
+  const bool on_map = merge && merge->connected;
+
   // ---- outputs (each atomic) ----
-  rast::PoseVector poses = slam.framePoses();
-  if (!poses.empty()) {
+  // On a session's map the poses are in its world frame; otherwise in the first scan's.
+  rast::PoseVector poses = on_map ? framePosesOnMap(slam.frames(), *merge) : slam.framePoses();
+  if (!poses.empty() && !on_map) {
     const rast::Pose3d T_first_inv = poses.front().inverse();
     for (auto& T : poses)
       T = T_first_inv * T;
@@ -620,14 +689,23 @@ run(int argc, char** argv)
 
   const rast::PoseVector kf_poses = slam.keyFramePoses();
   const auto keyframes = slam.keyFrames();
-  // The picture (not the outputs, which stay in the first scan's frame) is levelled
-  // by the ground around the start, so a tilted or handheld first scan still renders
-  // as a view from above.
+  // The key-frames of the map drawn and written: the run's, or on a session's map
+  // those of the merged map's anchored component (the session's world frame).
+  std::vector<rast::KeyFrame::Ptr> map_keyframes;
+  if (on_map)
+    for (const rast::KeyFrame::Ptr& kf : merge->merged.keyframes)
+      if (rast::sessionComponentOf(merge->merged, kf->id) == 0)
+        map_keyframes.push_back(kf);
+  // The picture (not the outputs) is levelled by the ground around the start of the
+  // map, so a tilted or handheld first scan still renders as a view from above.
   Eigen::Matrix3d R_level = Eigen::Matrix3d::Identity();
   if (!kf_poses.empty()) {
-    pcl::PointCloud<pcl::PointXYZI> first = *slam.map()->keyFrameCloud(0);
-    const Eigen::Matrix3f R = kf_poses.front().rotation().cast<float>();
-    const Eigen::Vector3f t = kf_poses.front().translation().cast<float>();
+    pcl::PointCloud<pcl::PointXYZI> first =
+        on_map ? *map_keyframes.front()->cloud : *slam.map()->keyFrameCloud(0);
+    const rast::Pose3d T_first = on_map ? map_keyframes.front()->T_world_keyframe
+                                        : kf_poses.front();
+    const Eigen::Matrix3f R = T_first.rotation().cast<float>();
+    const Eigen::Vector3f t = T_first.translation().cast<float>();
     for (auto& p : first.points)
       p.getVector3fMap() = R * p.getVector3fMap() + t;
     R_level = levellingRotation(first);
@@ -635,27 +713,47 @@ run(int argc, char** argv)
   pcl::rast::MapRenderParams render_params;
   render_params.force_software_fallback = software_render;
   std::vector<Eigen::Vector3d> kf_positions;
-  for (const auto& T : kf_poses)
-    kf_positions.push_back(T.translation());
+  if (on_map)
+    for (const auto& kf : map_keyframes)
+      kf_positions.push_back(kf->T_world_keyframe.translation());
+  else
+    for (const auto& T : kf_poses)
+      kf_positions.push_back(T.translation());
   RenderCloud render_map(R_level, kf_positions, map_leaf_m, render_params);
   // map.pcd is written tile by tile: the whole map is never held in memory.
   rast::PcdStreamWriter pcd(outputs.path("map.pcd"));
-  slam.map()->forEachMapTile(map_leaf_m, [&](const pcl::PointCloud<pcl::PointXYZI>& tile) {
+  const auto add_tile = [&](const pcl::PointCloud<pcl::PointXYZI>& tile) {
     pcd.append(tile);
     render_map.add(tile);
-  });
+  };
+  if (on_map)
+    rast::forEachSessionMapTile(map_keyframes, map_leaf_m, add_tile);
+  else
+    slam.map()->forEachMapTile(map_leaf_m, add_tile);
   pcd.commit();
   const std::size_t map_points = pcd.size();
   pcl::rast::MapRenderInput render_input;
   render_input.map = &render_map.cloud();
   render_input.map_points_total = map_points;
-  for (const auto& T : slam.framePoses())
+  // The trajectory in the frame of the map drawn (unrebased when not on a session's).
+  const rast::PoseVector drawn = on_map ? poses : slam.framePoses();
+  for (const auto& T : drawn)
     render_input.trajectory.push_back(R_level * T.translation());
+  // Ground truth starts where the drawn trajectory does.
+  const rast::Pose3d T_gt_start =
+      !gt.empty() && gt_frame.front() < drawn.size() ? drawn[gt_frame.front()] : rast::Pose3d::Identity();
   for (std::size_t k = 0; k < gt.size() && gt_frame[k] < poses.size(); ++k)
-    render_input.ground_truth.push_back(R_level * gt[k].translation());
+    render_input.ground_truth.push_back(R_level * (T_gt_start * gt[k]).translation());
+  if (on_map)
+    for (const auto& e : merge->merged.loops)
+      if (e.active && e.query >= merge->drive_first_keyframe &&
+          e.candidate < merge->drive_first_keyframe) // the inter-session loops
+        render_input.loop_edges.emplace_back(
+            R_level * merge->merged.keyframes.at(e.candidate)->T_world_keyframe.translation(),
+            R_level * merge->merged.keyframes.at(e.query)->T_world_keyframe.translation());
   json loop_json = json::array();
   for (const auto& e : slam.loops()) {
-    if (e.active)
+    if (e.active && !on_map)
       render_input.loop_edges.emplace_back(R_level * kf_poses.at(e.candidate).translation(),
                                            R_level * kf_poses.at(e.query).translation());
     loop_json.push_back({{"query_keyframe", e.query},
@@ -767,9 +865,60 @@ run(int argc, char** argv)
       summary["kitti_r_err_deg_per_100m"] = nullptr;
     }
   }
-  if (!save_session.empty())
-    summary["session"] = saveSessionOf(slam, save_session, preset, summary["params"],
-                                       run_error != nullptr);
+  summary["poses_frame"] = on_map ? "session" : "first_scan";
+  if (merge) {
+    json loops = json::array();
+    for (const auto& l : merge->loops)
+      loops.push_back({{"prior_keyframe", l.prior_keyframe},
+                       {"drive_keyframe", l.drive_keyframe},
+                       {"drive_frame", keyframes.at(l.drive_keyframe)->frame_index},
+                       {"inliers", l.num_inliers},
+                       {"agrees", l.agrees},
+                       {"dropped", l.dropped}});
+    summary["multi_session"] = {
+        {"session", session_dir},
+        {"session_keyframes", merge->drive_first_keyframe},
+        {"session_load_s", session_load_s},
+        {"connected", merge->connected},
+        {"component", merge->component},
+        {"merged_keyframes", merge->merged.keyframes.size()},
+        {"merged_drives", merge->merged.drives.size()},
+        {"keyframes_tried", merge->keyframes_tried},
+        {"placements", merge->loops.size()},
+        {"loops_agreeing", merge->loops_agreeing},
+        {"loops_used", merge->loops_used},
+        {"T_session_drive", poseJson(merge->T_prior_drive)},
+        {"pose_graph", merge->optimization.BriefReport()},
+        {"merge_s", merge->time_ms / 1000.0},
+        {"message", merge->message},
+        {"inter_session_loops", loops}};
+  }
+  else if (localizer) {
+    summary["multi_session"] = {{"session", session_dir},
+                                {"connected", false},
+                                {"message", "the run failed: not merged"}};
+  }
+  std::string session_failure;
+  if (!save_session.empty()) {
+    const json parameters = summary["params"];
+    const auto save = [&]() -> std::size_t {
+      if (merge) {
+        rast::Session merged = std::move(merge->merged);
+        merged.info.parameters_json =
+            parameters.dump(-1, ' ', false, json::error_handler_t::replace);
+        rast::saveSession(merged, save_session);
+        return merged.keyframes.size();
+      }
+      rast::SessionInfo info;
+      info.sensor_preset = rast::toString(preset);
+      info.created_by = "pcl_rast_slam";
+      info.parameters_json = parameters.dump(-1, ' ', false, json::error_handler_t::replace);
+      rast::saveSession(slam, save_session, info);
+      return slam.statistics().keyframes;
+    };
+    summary["session"] =
+        saveSessionOf(save, save_session, run_error != nullptr, session_failure);
+  }
   outputs.publish(summary); // summary.json last: it lists the files of this run
 
   std::cerr << "Wrote " << (fs::path(output) / "poses_kitti.txt").string()
@@ -786,6 +935,11 @@ run(int argc, char** argv)
     std::cerr << "pcl_rast_slam: error: " << error_message
               << " (the results up to it were written)\n";
     return pcl_rast_tools::kExitAlgorithmFailure;
+  }
+  if (!session_failure.empty()) {
+    std::cerr << "pcl_rast_slam: error: " << session_failure
+              << " (the run's outputs were written)\n";
+    return pcl_rast_tools::kExitIoError;
   }
   return pcl_rast_tools::kExitOk;
 }

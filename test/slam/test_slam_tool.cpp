@@ -207,6 +207,89 @@ TEST_F(SlamTool, SavesASessionAndRefusesAFolderThatIsNotOne)
 /// An exception in the loop-closing thread mid-run (injected at its second key-frame)
 /// ends the run but does not lose it: every output is written for the frames processed,
 /// summary.json names the error, and the exit code is 3.
+/// Multi-session mapping through the command line: frames 0-24 saved as a session, then
+/// frames 15-39 extend it (-session); a drive of another world stays separate.
+TEST_F(SlamTool, ExtendsASessionWithASecondDriveAndKeepsAStrangerSeparate)
+{
+  const fs::path seq = sequenceDir();
+  const fs::path first = dir_ / "first", second = dir_ / "second", third = dir_ / "third";
+  const fs::path session = dir_ / "session", merged = dir_ / "merged", apart = dir_ / "apart";
+  const std::string input = "-input '" + seq.string() + "' -software-render -quiet";
+  ASSERT_EQ(runTool(input + " -last 24 -output '" + first.string() + "' -save-session '" +
+                        session.string() + "'",
+                    log_),
+            0)
+      << readFile(log_);
+  ASSERT_EQ(runTool(input + " -first 15 -output '" + second.string() + "' -session '" +
+                        session.string() + "' -save-session '" + merged.string() + "'",
+                    log_),
+            0)
+      << readFile(log_);
+  const auto summary = nlohmann::json::parse(readFile(second / "summary.json"));
+  ASSERT_TRUE(summary.contains("multi_session")) << summary.dump(1);
+  const auto& ms = summary["multi_session"];
+  EXPECT_TRUE(ms["connected"].get<bool>()) << ms.dump(1);
+  EXPECT_GE(ms["loops_used"].get<int>(), 2) << ms.dump(1);
+  EXPECT_EQ(summary["poses_frame"], "session");
+  EXPECT_EQ(summary["params"]["sensor_choice"], "the session's");
+  // The overlap, frames 15-24, lands where the first drive put it.
+  const pcl::rast::PoseVector a =
+      pcl::rast::readTrajectory((first / "poses_kitti.txt").string()).poses;
+  const pcl::rast::PoseVector b =
+      pcl::rast::readTrajectory((second / "poses_kitti.txt").string()).poses;
+  ASSERT_EQ(a.size(), 25u); // frame 12 is corrupt: skipped, carried by the odometry
+  ASSERT_EQ(b.size(), 25u);
+  double worst_m = 0.0;
+  for (std::size_t i = 15; i < 24; ++i)
+    worst_m = std::max(worst_m, (a[i].translation() - b[i - 15].translation()).norm());
+  EXPECT_LT(worst_m, 0.3) << "frames 15-23 of the two drives";
+  // The merged session: both drives, one component; the map covers both.
+  const pcl::rast::Session m = pcl::rast::loadSession(merged.string());
+  ASSERT_EQ(m.drives.size(), 2u);
+  EXPECT_EQ(m.drives[1].component, 0);
+  EXPECT_EQ(m.keyframes.size(), ms["merged_keyframes"].get<std::size_t>());
+  pcl::PointCloud<pcl::PointXYZI> map;
+  ASSERT_EQ(pcl::io::loadPCDFile((second / "map.pcd").string(), map), 0);
+  float max_x = -1e9f;
+  for (const auto& p : map.points)
+    max_x = std::max(max_x, p.x);
+  EXPECT_GT(max_x, b.back().translation().x()) << "the map reaches the second drive's end";
+
+  // A drive through another world: not joined, reported, poses in its own frame.
+  const fs::path stranger = pcl_rast_test::simulateStraightDrive("slam_tool_stranger", 11);
+  ASSERT_EQ(runTool("-input '" + stranger.string() + "' -software-render -quiet -output '" +
+                        third.string() + "' -session '" + merged.string() +
+                        "' -save-session '" + apart.string() + "'",
+                    log_),
+            0)
+      << readFile(log_);
+  const auto s3 = nlohmann::json::parse(readFile(third / "summary.json"));
+  EXPECT_FALSE(s3["multi_session"]["connected"].get<bool>()) << s3["multi_session"].dump(1);
+  EXPECT_EQ(s3["multi_session"]["component"], 1);
+  EXPECT_EQ(s3["poses_frame"], "first_scan");
+  EXPECT_NE(readFile(log_).find("not joined"), std::string::npos) << readFile(log_);
+  const pcl::rast::Session m3 = pcl::rast::loadSession(apart.string());
+  ASSERT_EQ(m3.drives.size(), 3u);
+  EXPECT_EQ(m3.drives[2].component, 1);
+
+  // Bad use, before any work: another sensor than the session's, the session as output.
+  const fs::path bad = dir_ / "bad";
+  EXPECT_EQ(runTool(input + " -output '" + bad.string() + "' -session '" + session.string() +
+                        "' -sensor vlp16",
+                    log_),
+            2);
+  EXPECT_NE(readFile(log_).find("hdl64"), std::string::npos) << readFile(log_);
+  EXPECT_EQ(runTool(input + " -output '" + session.string() + "' -session '" +
+                        session.string() + "'",
+                    log_),
+            1);
+  EXPECT_EQ(runTool(input + " -output '" + bad.string() + "' -session '" + seq.string() + "'",
+                    log_),
+            2);
+  EXPECT_NE(readFile(log_).find("session.json"), std::string::npos) << readFile(log_);
+  EXPECT_FALSE(fs::exists(bad / "summary.json"));
+}
+
 TEST_F(SlamTool, AnErrorInTheLoopClosingThreadStillWritesEveryOutputAndExitsThree)
 {
   const fs::path out = dir_ / "out";

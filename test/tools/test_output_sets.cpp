@@ -13,6 +13,8 @@
 #include <csignal>
 #include <filesystem>
 #include <fstream>
+#include <pcl/slam/session.h>
+
 #include <gtest/gtest.h>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -379,6 +381,41 @@ TEST_F(OutputSets, AFullDiskKeepsThePreviousSetAndNamesTheCause)
     EXPECT_NE(next.run_id, first.run_id);
     fs::remove_all(out); // room for the next case
   }
+}
+
+/// A session that cannot be saved (its disk is full) does not cost the run its outputs:
+/// they are published, summary.json says the session was not saved and why, the exit
+/// code is 2, and the session saved before is left as it was.
+TEST_F(OutputSets, AFailedSessionSaveStillPublishesTheRunAndKeepsTheOldSession)
+{
+  const SmallDisk disk(dir_ / "disk", 16);
+  if (!disk.mounted())
+    GTEST_SKIP() << "mounting a small tmpfs needs root or CAP_SYS_ADMIN";
+  const fs::path out = dir_ / "out", session = dir_ / "disk" / "session";
+  ASSERT_EQ(run("pcl_rast_slam", slamArgs(out, "-save-session " + quoted(session))), 0)
+      << readFile(log_);
+  const std::string first_run = checkOutputSet(out.string()).run_id;
+  const std::string session_json = readFile(session / "session.json");
+  ASSERT_FALSE(session_json.empty());
+
+  disk.fill(dir_ / "disk" / "filler", 0);
+  EXPECT_EQ(run("pcl_rast_slam", slamArgs(out, "-stride 2 -save-session " + quoted(session))),
+            2)
+      << readFile(log_);
+  EXPECT_NE(readFile(log_).find("No space left on device"), std::string::npos)
+      << readFile(log_);
+  const auto check = checkOutputSet(out.string());
+  EXPECT_TRUE(check.complete);
+  EXPECT_NE(check.run_id, first_run) << "the run's outputs were published";
+  const auto summary = nlohmann::json::parse(readFile(out / "summary.json"));
+  EXPECT_FALSE(summary["session"]["saved"].get<bool>()) << summary["session"].dump();
+  EXPECT_NE(summary["session"]["error"].get<std::string>().find("No space left on device"),
+            std::string::npos);
+  EXPECT_EQ(readFile(session / "session.json"), session_json);
+  EXPECT_NO_THROW(pcl::rast::loadSession(session.string()));
+  for (const auto& e : fs::directory_iterator(dir_ / "disk"))
+    EXPECT_EQ(e.path().filename().string().find(".session.staging"), std::string::npos)
+        << e.path();
 }
 
 TEST_F(OutputSets, NothingValidExitsThreeAndWritesNothing)

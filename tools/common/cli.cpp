@@ -1,5 +1,6 @@
 #include "cli.h"
 
+#include <sys/resource.h>
 #include <unistd.h>
 
 #include <cmath>
@@ -292,6 +293,23 @@ runTool(const std::string& program, const std::function<int()>& body)
     std::cerr << program << ": error: " << e.what() << "\n";
     return kExitIoError;
   }
+}
+
+double
+peakRssMb()
+{
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return usage.ru_maxrss / 1024.0; // Linux: kilobytes
+}
+
+double
+processCpuS()
+{
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return usage.ru_utime.tv_sec + usage.ru_stime.tv_sec +
+         1e-6 * (usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
 }
 
 std::string

@@ -82,6 +82,12 @@ private:
 /// each printed as "program: error: ..." on stderr.
 int runTool(const std::string& program, const std::function<int()>& body);
 
+/// \brief Peak resident memory of the process so far [MB].
+double peakRssMb();
+
+/// \brief User + system CPU time of the whole process so far [s].
+double processCpuS();
+
 /// \brief The what() of a stored exception ("unknown error" for a non-std one).
 std::string exceptionMessage(const std::exception_ptr& error);
 
