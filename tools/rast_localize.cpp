@@ -213,7 +213,7 @@ run(int argc, char** argv)
     rast::LocalizationFrame f;
     try {
       const rast::ScanFrame frame = reader.read(i);
-      f = localization.addScan(frame.cloud, frame.timestamp_s, i);
+      f = localization.addScan(frame.cloud, frame.timestamp_s, i, frame.point_times_s);
       ++usable;
     } catch (const rast::ScanReadError& e) {
       std::fprintf(stderr, "\nframe %zu: skipped: %s\n", i, e.what());

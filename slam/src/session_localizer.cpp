@@ -4,6 +4,7 @@
 
 #include <pcl/slam/session_localizer.h>
 
+#include <pcl/slam/deskew.h>
 #include <pcl/slam/loop_detector.h>
 
 #include <pcl/common/time.h>
@@ -232,6 +233,7 @@ struct MapLocalization::Impl
   std::unique_ptr<Odometry> odometry;
   bool started = false;
   std::optional<Pose3d> T_world_previous; ///< the last frame's pose on the map
+  std::optional<double> last_timestamp_s;  ///< of the last scan the odometry saw
   Pose3d T_odom_previous = Pose3d::Identity();
   bool have_odom_previous = false;
   int tracking_only = 0;
@@ -239,6 +241,32 @@ struct MapLocalization::Impl
   std::map<KeyFrameId, std::shared_ptr<const PointToPlaneTarget>> targets;
   std::deque<KeyFrameId> target_order;
   static constexpr std::size_t kMaxTargets = 32;
+
+  /// The scan motion-compensated with this frame's estimated motion \a step (from the
+  /// last frame), as the odometry compensates what it tracks: point times from the scan
+  /// (\a point_times_s) or, with DeskewMode::kOn, from the azimuth. The scan itself
+  /// when there are no times or no motion yet (the first frame).
+  pcl::PointCloud<pcl::PointXYZI>::ConstPtr
+  compensated(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+              const std::vector<float>& point_times_s,
+              double timestamp_s,
+              const Pose3d& step) const
+  {
+    const DeskewParams& d = odometry_params.deskew;
+    if (!scan || scan->empty() || d.mode == DeskewMode::kOff || !last_timestamp_s)
+      return scan;
+    const double dt = (timestamp_s - *last_timestamp_s) * d.seconds_per_timestamp;
+    if (!(dt > 0.0) || !std::isfinite(dt))
+      return scan;
+    std::vector<float> times;
+    if (point_times_s.size() == scan->size())
+      times = point_times_s;
+    else if (d.mode == DeskewMode::kOn)
+      times = azimuthTimes(*scan, d.sweep_period_s > 0.0 ? d.sweep_period_s : dt, d.sweep);
+    if (times.empty())
+      return scan;
+    return deskewCloud(*scan, times, logSE3(step) / dt, d.bins);
+  }
 
   std::shared_ptr<const PointToPlaneTarget> target(const KeyFrame& kf)
   {
@@ -357,6 +385,7 @@ struct MapLocalization::Impl
         // Kidnapped: the odometry's local map is of another place; start it afresh.
         odometry = std::make_unique<Odometry>(odometry_params);
         have_odom_previous = false;
+        last_timestamp_s.reset();
         char text[64];
         std::snprintf(text, sizeof text, "jump of %.1f m: ", f.jump_m);
         f.message = text + f.message;
@@ -394,14 +423,29 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
                          double timestamp_s,
                          std::size_t frame_index)
 {
+  return addScan(scan, timestamp_s, frame_index, {});
+}
+
+LocalizationFrame
+MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_scan,
+                         double timestamp_s,
+                         std::size_t frame_index,
+                         const std::vector<float>& point_times_s)
+{
   const pcl::StopWatch watch;
   Impl& m = *impl_;
   m.started = true;
   LocalizationFrame f;
   f.frame_index = frame_index;
   f.timestamp_s = timestamp_s;
-  const OdometryFrameResult odo = m.odometry->processFrame(scan, timestamp_s, frame_index);
+  const OdometryFrameResult odo =
+      m.odometry->processFrame(raw_scan, timestamp_s, frame_index, point_times_s);
   const Pose3d step = m.odometryStep(odo);
+  // The map's key-frames were compensated: so is the scan aligned or placed on them.
+  const pcl::PointCloud<pcl::PointXYZI>::ConstPtr scan =
+      m.compensated(raw_scan, point_times_s, timestamp_s, step);
+  if (odo.status != TrackingStatus::kSkipped)
+    m.last_timestamp_s = timestamp_s;
   std::optional<Pose3d> predicted;
   if (m.T_world_previous)
     predicted = normalizedPose(*m.T_world_previous * step);

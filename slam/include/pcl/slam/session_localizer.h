@@ -19,6 +19,7 @@
 
 #include <memory>
 #include <string>
+#include <vector>
 
 namespace pcl {
 namespace rast {
@@ -185,6 +186,14 @@ public:
   LocalizationFrame addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
                             double timestamp_s,
                             std::size_t frame_index);
+  /// \brief addScan with the points' times [s] relative to the frame time
+  /// (ScanFrame::point_times_s; empty: none). Raw sweeps are then motion-compensated
+  /// (OdometryParams::deskew) for the odometry, the map alignment and the placement,
+  /// with the motion the odometry estimated for the frame.
+  LocalizationFrame addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+                            double timestamp_s,
+                            std::size_t frame_index,
+                            const std::vector<float>& point_times_s);
   /// \brief A scan that could not be read: carried on by the odometry's prediction.
   LocalizationFrame addSkippedScan(double timestamp_s,
                                    std::size_t frame_index,
