@@ -438,18 +438,6 @@ checkSessionDestination(const std::string& dir)
 
 namespace {
 
-/// The drives of \a session, or its key-frames as the one drive when it lists none.
-std::vector<SessionDrive>
-drivesOrDefault(const Session& session)
-{
-  if (!session.drives.empty())
-    return session.drives;
-  SessionDrive all;
-  all.num_keyframes = session.keyframes.size();
-  all.num_frames = session.info.num_frames;
-  all.created_by = session.info.created_by;
-  return {all};
-}
 
 /// A session's drives must cover its key-frames in order, each once.
 void
@@ -469,6 +457,18 @@ checkDrives(const std::vector<SessionDrive>& drives, std::size_t num_keyframes,
 }
 
 } // namespace
+
+std::vector<SessionDrive>
+sessionDrives(const Session& session)
+{
+  if (!session.drives.empty())
+    return session.drives;
+  SessionDrive all;
+  all.num_keyframes = session.keyframes.size();
+  all.num_frames = session.info.num_frames;
+  all.created_by = session.info.created_by;
+  return {all};
+}
 
 int
 sessionComponentOf(const Session& session, KeyFrameId id)
@@ -505,7 +505,7 @@ sessionFromSlam(const RastSlam& slam, SessionInfo info)
   if (info.num_frames == 0)
     info.num_frames = map->numFrames();
   session.info = std::move(info);
-  session.drives = drivesOrDefault(session);
+  session.drives = sessionDrives(session);
   return session;
 }
 
@@ -528,7 +528,7 @@ saveSession(const RastSlam& slam, const std::string& dir, SessionInfo info)
   shape.info = info;
   shape.keyframes.resize(keyframes.size());
   writer.commit(keyFrameGraph(*map, loops, slam.params().loop_closing), loops, info,
-                drivesOrDefault(shape));
+                sessionDrives(shape));
 }
 
 void
@@ -540,7 +540,7 @@ saveSession(const Session& session, const std::string& dir)
       throw std::invalid_argument("saveSession: a null key-frame");
     writer.addKeyFrame(*kf, kf->T_world_keyframe, kf->cloud);
   }
-  const std::vector<SessionDrive> drives = drivesOrDefault(session);
+  const std::vector<SessionDrive> drives = sessionDrives(session);
   checkDrives(drives, session.keyframes.size(), [](const std::string& why) {
     throw std::invalid_argument("saveSession: " + why);
   });
@@ -648,7 +648,7 @@ loadSession(const std::string& dir_name, const SessionLoadOptions& options)
       checkDrives(result.drives, result.keyframes.size(),
                   [&jp](const std::string& why) { throw SessionError(jp, why); });
     }
-    result.drives = drivesOrDefault(result);
+    result.drives = sessionDrives(result);
   } catch (const json::exception& e) {
     throw SessionError(jp, std::string("malformed: ") + e.what());
   }

@@ -177,23 +177,11 @@ mergeSessions(const SessionLocalizer& prior,
   int components = 1;
   for (const SessionDrive& d : old.drives)
     components = std::max(components, d.component + 1);
-  merged.drives = old.drives;
-  if (merged.drives.empty()) {
-    SessionDrive all;
-    all.num_keyframes = old.keyframes.size();
-    all.num_frames = old.info.num_frames;
-    all.created_by = old.info.created_by;
-    merged.drives.push_back(all);
-  }
+  merged.drives = sessionDrives(old);
   result.component = result.connected ? 0 : components;
   {
     std::size_t first = offset;
-    const std::vector<SessionDrive> drive_drives =
-        drive.drives.empty() ? std::vector<SessionDrive>{SessionDrive{
-                                   0, drive.keyframes.size(), drive.info.num_frames,
-                                   drive.info.created_by, "", 0}}
-                             : drive.drives;
-    for (SessionDrive d : drive_drives) {
+    for (SessionDrive d : sessionDrives(drive)) {
       d.first_keyframe = static_cast<KeyFrameId>(first);
       first += d.num_keyframes;
       // A drive session's own separate parts stay separate, after the prior's.

@@ -99,6 +99,11 @@ struct Session
   PoseGraph graph;
 };
 
+/// \brief The drives of \a session, or all its key-frames as one drive of component 0
+/// when it lists none.
+std::vector<SessionDrive>
+sessionDrives(const Session& session);
+
 /// \brief The component of key-frame \a id (SessionDrive::component; 0 when the session
 /// lists no drives). \throws std::out_of_range for an id beyond the key-frames.
 int
