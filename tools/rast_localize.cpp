@@ -77,10 +77,13 @@ sessionMap(const rast::Session& session, double leaf_m, std::size_t& total)
   rast::VoxelOccupancy occupied(leaf_m); // the first point of each voxel is kept
   total = 0;
   for (const rast::KeyFrame::Ptr& kf : session.keyframes) {
-    if (!kf->cloud || rast::sessionComponentOf(session, kf->id) != 0)
+    if (rast::sessionComponentOf(session, kf->id) != 0)
       continue; // a separate map of the session, in another frame
+    const pcl::PointCloud<pcl::PointXYZI>::ConstPtr cloud = rast::sessionCloud(session, kf->id);
+    if (!cloud)
+      continue;
     const Eigen::Isometry3f T = kf->T_world_keyframe.cast<float>();
-    for (const auto& p : kf->cloud->points) {
+    for (const auto& p : cloud->points) {
       ++total;
       const Eigen::Vector3f w = T * p.getVector3fMap();
       if (!occupied.insert(w))
@@ -165,6 +168,9 @@ run(int argc, char** argv)
   const pcl::StopWatch load_watch;
   rast::SessionLoadOptions load_options;
   load_options.expected_sensor_preset = sensor;
+  // Clouds stay in their files: the localizer's index keeps compact dense targets, and
+  // the map alignment reads the few key-frames it aligns to (a bounded cache).
+  load_options.load_clouds = false;
   rast::Session session;
   try {
     session = rast::loadSession(session_dir, load_options);
@@ -184,12 +190,23 @@ run(int argc, char** argv)
   std::string deskew_reason, deskew_timing;
   applyDeskewFlags(deskew, reader, static_cast<std::size_t>(stride),
                    localizer_params.odometry.deskew, deskew_reason, deskew_timing);
-  std::size_t map_total = 0;
-  const pcl::PointCloud<pcl::PointXYZI> render_map = sessionMap(session, 0.4, map_total);
-  const rast::SessionLocalizer localizer(std::move(session), localizer_params);
-  rast::MapLocalization localization(localizer, localizer_params.odometry, params);
+  // What the render needs of the session (poses, drives, cloud files), kept so that the
+  // localizer can be let go before the render map is built: the two never share memory.
+  rast::Session map_shape;
+  map_shape.drives = session.drives;
+  map_shape.cloud_files = session.cloud_files;
+  for (const rast::KeyFrame::Ptr& kf : session.keyframes) {
+    auto shape = std::make_shared<rast::KeyFrame>();
+    shape->id = kf->id;
+    shape->T_world_keyframe = kf->T_world_keyframe;
+    map_shape.keyframes.push_back(std::move(shape));
+  }
+  auto localizer =
+      std::make_unique<const rast::SessionLocalizer>(std::move(session), localizer_params);
+  auto localization =
+      std::make_unique<rast::MapLocalization>(*localizer, localizer_params.odometry, params);
   if (start)
-    localization.setInitialPose(*start);
+    localization->setInitialPose(*start);
 
   rast::PoseVector poses;
   std::vector<double> times;
@@ -213,11 +230,11 @@ run(int argc, char** argv)
     rast::LocalizationFrame f;
     try {
       const rast::ScanFrame frame = reader.read(i);
-      f = localization.addScan(frame.cloud, frame.timestamp_s, i, frame.point_times_s);
+      f = localization->addScan(frame.cloud, frame.timestamp_s, i, frame.point_times_s);
       ++usable;
     } catch (const rast::ScanReadError& e) {
       std::fprintf(stderr, "\nframe %zu: skipped: %s\n", i, e.what());
-      f = localization.addSkippedScan(reader.timestamp(i), i, e.what());
+      f = localization->addSkippedScan(reader.timestamp(i), i, e.what());
       skipped.push_back({{"frame", i}, {"path", e.path()}, {"reason", e.what()}});
     }
     if (f.status == rast::LocalizationStatus::kLocalized && first_localized < 0)
@@ -261,6 +278,18 @@ run(int argc, char** argv)
   rast::writeTumPoses(outputs.path("poses_tum.txt"), poses, times);
   rast::writeFileAtomically(outputs.path("status.csv"), csv.str());
 
+  const std::size_t indexed_keyframes = localizer->numIndexed();
+  localization.reset();
+  localizer.reset();
+  std::size_t map_total = 0;
+  pcl::PointCloud<pcl::PointXYZI> render_map;
+  try {
+    render_map = sessionMap(map_shape, 0.4, map_total);
+  } catch (const rast::SessionError& e) { // a cloud file changed since the load
+    std::fprintf(stderr, "pcl_rast_localize: warning: the map is missing from render.png: %s\n",
+                 e.what());
+  }
+
   rast::MapRenderParams render_params;
   render_params.force_software_fallback = software_render;
   rast::MapRenderInput render_input;
@@ -279,8 +308,8 @@ run(int argc, char** argv)
   std::sort(sorted.begin(), sorted.end());
   json summary;
   summary["session"] = session_dir;
-  summary["session_keyframes"] = localizer.session().keyframes.size();
-  summary["session_indexed_keyframes"] = localizer.numIndexed();
+  summary["session_keyframes"] = map_shape.keyframes.size();
+  summary["session_indexed_keyframes"] = indexed_keyframes;
   summary["session_load_s"] = load_s;
   summary["sensor"] = rast::toString(preset);
   summary["input"] = reader.scanFolder();

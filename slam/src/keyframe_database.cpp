@@ -527,5 +527,19 @@ KeyFrameDatabase::denseTarget(const RetrievedKeyFrame& retrieved) const
   return decodeDense(dense_store_->getVector<DensePoint>(retrieved.dense_target));
 }
 
+PointVector
+KeyFrameDatabase::denseTarget(const KeyFrame& keyframe) const
+{
+  BlobStore::Handle handle;
+  {
+    std::shared_lock<std::shared_mutex> lock(mutex_);
+    const auto it = slot_of_.find(keyframe.id);
+    if (it == slot_of_.end() || entries_[it->second].keyframe.get() != &keyframe)
+      return {};
+    handle = entries_[it->second].dense_target;
+  }
+  return decodeDense(dense_store_->getVector<DensePoint>(handle));
+}
+
 } // namespace rast
 } // namespace pcl

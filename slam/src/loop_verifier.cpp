@@ -455,8 +455,10 @@ LoopDetector::denseCheck(const KeyFrame& query,
   // 9. Dense check: point-to-plane refinement of the query's planar points on the
   // candidate's, then the share of query structure (walls, not ground) that fits.
   // The candidate's target as the database keeps it (empty when it had no cloud at
-  // insertion), else made from its cloud.
-  const PointVector stored = retrieved ? database_.denseTarget(*retrieved) : PointVector();
+  // insertion), else made from its cloud. A candidate given without its retrieval
+  // (verify(); a session key-frame whose cloud stays in its file) is looked up.
+  const PointVector stored =
+      retrieved ? database_.denseTarget(*retrieved) : database_.denseTarget(candidate);
   if (!query.cloud || (!candidate.cloud && stored.empty()))
     return "dense check: a key-frame has no cloud";
   const PointToPlaneParams& dp = params_.dense;

@@ -428,7 +428,42 @@ readFeatures(const fs::path& path, std::size_t expected, RasterFeatureSet& featu
   fromSignatureCloud(signatures, features);
 }
 
+/// A key-frame's cloud file, which must hold the points \a json_path lists.
+pcl::PointCloud<pcl::PointXYZI>::Ptr
+readCloudFile(const SessionCloudFile& file, const std::string& json_path)
+{
+  pcl::PointCloud<pcl::PointXYZI>::Ptr cloud;
+  try {
+    cloud = readScan(file.path);
+  } catch (const std::exception& e) {
+    throw SessionError(file.path, e.what());
+  }
+  if (cloud->size() != file.points)
+    throw SessionError(file.path, "holds " + std::to_string(cloud->size()) + " points, " +
+                                      json_path + " lists " + std::to_string(file.points));
+  return cloud;
+}
+
 } // namespace
+
+pcl::PointCloud<pcl::PointXYZI>::ConstPtr
+sessionCloud(const Session& session, KeyFrameId id)
+{
+  const KeyFrame::Ptr& kf = session.keyframes.at(id);
+  if (kf && kf->cloud)
+    return kf->cloud;
+  if (id >= session.cloud_files.size() || session.cloud_files[id].path.empty())
+    return nullptr;
+  return readCloudFile(session.cloud_files[id], "session.json");
+}
+
+bool
+sessionHasCloud(const Session& session, KeyFrameId id)
+{
+  const KeyFrame::Ptr& kf = session.keyframes.at(id);
+  return (kf && kf->cloud && !kf->cloud->empty()) ||
+         (id < session.cloud_files.size() && session.cloud_files[id].points > 0);
+}
 
 void
 checkSessionDestination(const std::string& dir)
@@ -538,7 +573,10 @@ saveSession(const Session& session, const std::string& dir)
   for (const KeyFrame::Ptr& kf : session.keyframes) {
     if (!kf)
       throw std::invalid_argument("saveSession: a null key-frame");
-    writer.addKeyFrame(*kf, kf->T_world_keyframe, kf->cloud);
+    // A cloud not held is read from the file it was loaded from, one at a time.
+    writer.addKeyFrame(*kf, kf->T_world_keyframe,
+                       kf->id < session.keyframes.size() ? sessionCloud(session, kf->id)
+                                                          : kf->cloud);
   }
   const std::vector<SessionDrive> drives = sessionDrives(session);
   checkDrives(drives, session.keyframes.size(), [](const std::string& why) {
@@ -610,19 +648,15 @@ loadSession(const std::string& dir_name, const SessionLoadOptions& options)
       if (!entry.at("features").is_null())
         readFeatures(sessionFile(dir, entry.at("features"), jp),
                      entry.at("num_features").get<std::size_t>(), kf->features);
-      if (options.load_clouds && !entry.at("cloud").is_null()) {
-        const fs::path cloud_path = sessionFile(dir, entry.at("cloud"), jp);
-        try {
-          kf->cloud = readScan(cloud_path.string());
-        } catch (const std::exception& e) {
-          throw SessionError(cloud_path.string(), e.what());
-        }
-        if (kf->cloud->size() != entry.at("points").get<std::size_t>())
-          throw SessionError(cloud_path.string(), "holds " + std::to_string(kf->cloud->size()) +
-                                                      " points, " + jp + " lists " +
-                                                      entry.at("points").dump());
+      SessionCloudFile cloud_file;
+      if (!entry.at("cloud").is_null()) {
+        cloud_file.path = sessionFile(dir, entry.at("cloud"), jp).string();
+        cloud_file.points = entry.at("points").get<std::size_t>();
       }
+      if (options.load_clouds && !cloud_file.path.empty())
+        kf->cloud = readCloudFile(cloud_file, jp);
       result.keyframes.push_back(std::move(kf));
+      result.cloud_files.push_back(std::move(cloud_file));
     }
     for (const json& entry : session.at("loops")) {
       LoopEdge loop;

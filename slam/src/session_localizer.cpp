@@ -71,11 +71,19 @@ SessionLocalizer::SessionLocalizer(Session session, const SessionLocalizerParams
   impl_->session = std::move(session);
   impl_->detector = std::make_unique<LoopDetector>(impl_->params.verification);
   for (const KeyFrame::Ptr& kf : impl_->session.keyframes) {
-    if (!kf || kf->features.empty() || !kf->cloud)
-      continue; // nothing to match against (features released, or clouds not loaded)
+    if (!kf || kf->features.empty() || !sessionHasCloud(impl_->session, kf->id))
+      continue; // nothing to match against (features released, or no cloud)
     if (sessionComponentOf(impl_->session, kf->id) != 0)
       continue; // a drive that never met the map: its poses are in another frame
-    impl_->detector->addKeyFrame(kf, kf->T_world_keyframe);
+    if (kf->cloud) {
+      impl_->detector->addKeyFrame(kf, kf->T_world_keyframe);
+    } else {
+      // A session loaded without its clouds: the index keeps its own compact dense
+      // target, so the cloud is read for the insertion and let go again.
+      kf->cloud = sessionCloud(impl_->session, kf->id);
+      impl_->detector->addKeyFrame(kf, kf->T_world_keyframe);
+      kf->cloud.reset();
+    }
     ++impl_->indexed;
   }
 }
@@ -165,8 +173,18 @@ SessionLocalizer::place(const KeyFrame& query_in) const
     p.time_ms = watch.getTime();
     return p;
   }
-  p.message = ranking.empty() ? "no key-frame of the map shares its appearance"
-                              : "no candidate verified (" + reasons + ")";
+  if (ranking.empty())
+    p.message = "no key-frame of the map shares its appearance";
+  else if (p.candidates_verified == 0)
+    p.message = "no key-frame's appearance score reaches " +
+                std::to_string(impl_->params.verification.min_appearance_score) + " (best " +
+                std::to_string(std::max_element(ranking.begin(), ranking.end(),
+                                                [](const auto& a, const auto& b) {
+                                                  return a.second < b.second;
+                                                })->second) +
+                ")";
+  else
+    p.message = "no candidate verified (" + reasons + ")";
   p.time_ms = watch.getTime();
   return p;
 }
@@ -273,7 +291,7 @@ struct MapLocalization::Impl
     if (auto it = targets.find(kf.id); it != targets.end())
       return it->second;
     auto t = std::make_shared<PointToPlaneTarget>();
-    t->build(*kf.cloud, params.alignment);
+    t->build(*sessionCloud(localizer.session(), kf.id), params.alignment);
     if (targets.size() >= kMaxTargets) {
       targets.erase(target_order.front());
       target_order.pop_front();
@@ -288,7 +306,7 @@ struct MapLocalization::Impl
   {
     std::vector<std::pair<double, const KeyFrame*>> near;
     for (const KeyFrame::Ptr& kf : localizer.session().keyframes) {
-      if (!kf->cloud || kf->cloud->empty() ||
+      if (!sessionHasCloud(localizer.session(), kf->id) ||
           sessionComponentOf(localizer.session(), kf->id) != 0)
         continue; // no cloud, or a separate map in another frame
       const double d = (kf->T_world_keyframe.translation() - T_world.translation()).norm();

@@ -51,12 +51,13 @@ struct MappedLoop
   std::unique_ptr<SessionLocalizer> localizer;
   OdometryParams odometry;
   Pose3d T0_inv = Pose3d::Identity(); ///< the session's world is frame 0's LiDAR frame
+  fs::path dir;                       ///< the saved session
 
   Pose3d truth(std::size_t i) const { return T0_inv * sim->sensorPose(i); }
 };
 
 MappedLoop
-mapLoop()
+mapLoop(bool load_clouds = true)
 {
   MappedLoop m;
   m.sim = pathSimulator(PathType::kLoop, 200, 0.25, 3);
@@ -74,7 +75,10 @@ mapLoop()
   info.sensor_preset = toString(SensorPreset::kHdl64);
   saveSession(slam, dir.string(), info);
 
-  Session session = loadSession(dir.string());
+  SessionLoadOptions options;
+  options.load_clouds = load_clouds;
+  Session session = loadSession(dir.string(), options);
+  m.dir = dir;
   SessionLocalizerParams params;
   applySensorPreset(sensorPresetFromName(session.info.sensor_preset), params.odometry);
   m.odometry = params.odometry;
@@ -129,6 +133,53 @@ TEST(SessionLocalizer, PlacesASecondPassWithNoPriorAndNothingOffTheMap)
   const Placement none = localizer.place(std::make_shared<pcl::PointCloud<pcl::PointXYZI>>());
   EXPECT_FALSE(none.success);
   EXPECT_EQ(none.message, "empty scan");
+}
+
+/// A session loaded without its clouds (what pcl_rast_localize does, to hold less
+/// memory) places scans exactly as one loaded with them: the index keeps the dense
+/// targets, and the clouds are read from their files when needed, also to save it.
+TEST(SessionLocalizer, ASessionLoadedWithoutCloudsPlacesTheSameScans)
+{
+  const MappedLoop full = mapLoop(true);
+  const MappedLoop lazy = mapLoop(false);
+  const Session& session = lazy.localizer->session();
+  EXPECT_EQ(lazy.localizer->numIndexed(), full.localizer->numIndexed());
+  for (const KeyFrame::Ptr& kf : session.keyframes)
+    EXPECT_FALSE(kf->cloud) << "key-frame " << kf->id << " holds its cloud after indexing";
+  const KeyFrameId last = static_cast<KeyFrameId>(session.keyframes.size() - 1);
+  ASSERT_TRUE(sessionHasCloud(session, last));
+  ASSERT_TRUE(sessionCloud(session, last));
+  EXPECT_EQ(sessionCloud(session, last)->size(),
+            sessionCloud(full.localizer->session(), last)->size());
+
+  int placed = 0;
+  for (std::size_t i = 160; i < 200; i += 8) {
+    const Placement a = full.localizer->place(simulateFrame(*full.sim, i));
+    const Placement b = lazy.localizer->place(simulateFrame(*lazy.sim, i));
+    ASSERT_EQ(a.success, b.success) << "frame " << i << ": " << a.message << " / " << b.message;
+    if (!a.success)
+      continue;
+    ++placed;
+    EXPECT_EQ(a.keyframe, b.keyframe) << "frame " << i;
+    EXPECT_EQ(a.num_inliers, b.num_inliers) << "frame " << i;
+    EXPECT_LT((a.T_world_lidar.translation() - b.T_world_lidar.translation()).norm(), 1e-6)
+        << "frame " << i;
+  }
+  EXPECT_GE(placed, 4) << "of 5 second-pass scans";
+
+  // Saved again, the clouds come from the files they were loaded from.
+  const fs::path copy = lazy.dir.string() + "_copy";
+  fs::remove_all(copy);
+  pcl_rast_test::removeAtExit(copy);
+  saveSession(session, copy.string());
+  const Session again = loadSession(copy.string());
+  ASSERT_EQ(again.keyframes.size(), session.keyframes.size());
+  ASSERT_TRUE(again.keyframes[last]->cloud);
+  EXPECT_EQ(again.keyframes[last]->cloud->size(), sessionCloud(session, last)->size());
+
+  // A cloud file that changed since the load is an error naming it.
+  fs::resize_file(session.cloud_files[last].path, 200);
+  EXPECT_THROW(sessionCloud(session, last), SessionError);
 }
 
 /// A second pass localized scan after scan (cold start, then tracking on the map), and

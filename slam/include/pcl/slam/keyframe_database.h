@@ -131,6 +131,11 @@ public:
   PointVector
   denseTarget(const RetrievedKeyFrame& retrieved) const;
 
+  /// \brief The dense-check target stored for \a keyframe (empty unless that very
+  /// key-frame object was added with a cloud).
+  PointVector
+  denseTarget(const KeyFrame& keyframe) const;
+
   /// \brief The dense-check target a key-frame's cloud gives (voxelized at
   /// dense.target_voxel_size_m, cropped to dense_crop_radius_m, quantized).
   static std::vector<DensePoint>

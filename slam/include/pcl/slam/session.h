@@ -82,6 +82,13 @@ struct SessionDrive
   int component = 0;
 };
 
+/// \brief A key-frame cloud file of a loaded session.
+struct SessionCloudFile
+{
+  std::string path;       ///< empty: the key-frame has no cloud
+  std::size_t points = 0; ///< as session.json lists them
+};
+
 /// \brief A saved session in memory.
 struct Session
 {
@@ -97,7 +104,23 @@ struct Session
   std::vector<LoopEdge> loops; ///< the active loop edges
   /// The pose graph as saved (nodes = key-frame ids).
   PoseGraph graph;
+  /// Where loadSession found each key-frame's cloud (index = id; an empty path: none).
+  /// A session loaded without its clouds (SessionLoadOptions::load_clouds = false)
+  /// reads them from here when they are needed (sessionCloud). Empty in a session
+  /// built in memory.
+  std::vector<SessionCloudFile> cloud_files;
 };
+
+/// \brief The cloud of key-frame \a id: the one it holds, else the one its session
+/// file holds (read now; the file was checked by loadSession), else null.
+/// \throws SessionError naming the file when it cannot be read or no longer holds the
+/// points session.json lists; std::out_of_range for an id beyond the key-frames.
+pcl::PointCloud<pcl::PointXYZI>::ConstPtr
+sessionCloud(const Session& session, KeyFrameId id);
+
+/// \brief Whether key-frame \a id has a cloud, held or in its session file.
+bool
+sessionHasCloud(const Session& session, KeyFrameId id);
 
 /// \brief The drives of \a session, or all its key-frames as one drive of component 0
 /// when it lists none.
