@@ -227,6 +227,8 @@ MapLocalizationParams::isValid(std::string* why) const
   if (max_tracking_only_frames < 0)
     return fail("max_tracking_only_frames must be >= 0, got " +
                 std::to_string(max_tracking_only_frames));
+  if (max_realign_frames < 1)
+    return fail("max_realign_frames must be >= 1, got " + std::to_string(max_realign_frames));
   return true;
 }
 
@@ -469,7 +471,10 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
     predicted = normalizedPose(*m.T_world_previous * step);
 
   std::string why;
-  if (predicted && scan && !scan->empty()) {
+  if (predicted && m.tracking_only >= m.params.max_realign_frames) {
+    why = std::to_string(m.tracking_only) +
+          " frames since the map last confirmed the pose: only a placement localizes again";
+  } else if (predicted && scan && !scan->empty()) {
     if (const auto a = m.alignToMap(*scan, *predicted, why)) {
       f.status = LocalizationStatus::kLocalized;
       f.T_world_lidar = a->T_world_lidar;

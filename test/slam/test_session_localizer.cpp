@@ -229,6 +229,9 @@ TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
         continue;
       }
       jump_reported = jump_reported || f.jump;
+      // Never localized at the stale place the odometry carries on from.
+      if (f.status == LocalizationStatus::kLocalized)
+        EXPECT_LT(error_m, 2.0) << "frame " << i << " localized off: " << f.message;
       if (first_right_after_jump < 0 && f.status == LocalizationStatus::kLocalized &&
           error_m < 0.2)
         first_right_after_jump = static_cast<int>(i - 140);
@@ -262,6 +265,10 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
   std::string why;
   EXPECT_FALSE(bad.isValid(&why));
   EXPECT_NE(why.find("map_keyframes must be >= 1, got 0"), std::string::npos) << why;
+  MapLocalizationParams no_realign;
+  no_realign.max_realign_frames = 0;
+  EXPECT_FALSE(no_realign.isValid(&why));
+  EXPECT_NE(why.find("max_realign_frames must be >= 1, got 0"), std::string::npos) << why;
 }
 
 } // namespace

@@ -137,6 +137,12 @@ struct MapLocalizationParams
   double jump_m = 2.0;
   /// Frames the odometry may carry the pose alone before it is given up (lost).
   int max_tracking_only_frames = 30;
+  /// A dense alignment to the map confirms the predicted pose only while the map last
+  /// confirmed it fewer than this many frames ago (>= 1). Later (the odometry alone for longer,
+  /// or the input jumped) only a placement, verified by features, localizes again: a
+  /// dense alignment from a stale prediction can lock onto a street that looks the
+  /// same (a 200-frame kidnapping was "localized" 137 m off that way).
+  int max_realign_frames = 5;
   /// \brief Whether all values are usable; on failure \a why (if not null) says which.
   bool isValid(std::string* why = nullptr) const;
 };
