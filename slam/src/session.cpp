@@ -473,7 +473,6 @@ checkSessionDestination(const std::string& dir)
 
 namespace {
 
-
 /// A session's drives must cover its key-frames in order, each once.
 void
 checkDrives(const std::vector<SessionDrive>& drives, std::size_t num_keyframes,
@@ -570,13 +569,12 @@ void
 saveSession(const Session& session, const std::string& dir)
 {
   SessionWriter writer(dir);
-  for (const KeyFrame::Ptr& kf : session.keyframes) {
+  for (std::size_t i = 0; i < session.keyframes.size(); ++i) {
+    const KeyFrame::Ptr& kf = session.keyframes[i];
     if (!kf)
       throw std::invalid_argument("saveSession: a null key-frame");
     // A cloud not held is read from the file it was loaded from, one at a time.
-    writer.addKeyFrame(*kf, kf->T_world_keyframe,
-                       kf->id < session.keyframes.size() ? sessionCloud(session, kf->id)
-                                                          : kf->cloud);
+    writer.addKeyFrame(*kf, kf->T_world_keyframe, sessionCloud(session, static_cast<KeyFrameId>(i)));
   }
   const std::vector<SessionDrive> drives = sessionDrives(session);
   checkDrives(drives, session.keyframes.size(), [](const std::string& why) {

@@ -75,15 +75,13 @@ SessionLocalizer::SessionLocalizer(Session session, const SessionLocalizerParams
       continue; // nothing to match against (features released, or no cloud)
     if (sessionComponentOf(impl_->session, kf->id) != 0)
       continue; // a drive that never met the map: its poses are in another frame
-    if (kf->cloud) {
-      impl_->detector->addKeyFrame(kf, kf->T_world_keyframe);
-    } else {
-      // A session loaded without its clouds: the index keeps its own compact dense
-      // target, so the cloud is read for the insertion and let go again.
-      kf->cloud = sessionCloud(impl_->session, kf->id);
-      impl_->detector->addKeyFrame(kf, kf->T_world_keyframe);
+    // A session loaded without its clouds: the index keeps its own compact dense
+    // target, so the cloud is read for the insertion and let go again.
+    const bool read_cloud = !kf->cloud;
+    kf->cloud = sessionCloud(impl_->session, kf->id);
+    impl_->detector->addKeyFrame(kf, kf->T_world_keyframe);
+    if (read_cloud)
       kf->cloud.reset();
-    }
     ++impl_->indexed;
   }
 }

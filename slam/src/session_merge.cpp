@@ -192,7 +192,6 @@ mergeSessions(const SessionLocalizer& prior,
   for (const KeyFrame::Ptr& kf : old.keyframes)
     merged.keyframes.push_back(std::make_shared<KeyFrame>(*kf));
   merged.cloud_files = old.cloud_files; // clouds of a prior loaded without them
-  merged.cloud_files.resize(old.cloud_files.empty() ? 0 : old.keyframes.size());
   for (const KeyFrame::Ptr& kf : drive.keyframes) {
     auto copy = std::make_shared<KeyFrame>(*kf);
     copy->id = kf->id + offset;
