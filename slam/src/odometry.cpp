@@ -282,7 +282,7 @@ Odometry::Impl::commitPose(const OdometryFrameResult& result)
 
 KeyFrame::Ptr
 Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
-                             RasterFeatureSet&& features,
+                             const RasterFeatureSet& features,
                              const pcl::PointCloud<pcl::PointXYZI>& cloud)
 {
   auto kf = std::make_shared<KeyFrame>();
@@ -293,7 +293,7 @@ Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
   kf->T_previous_keyframe =
       keyframe ? composePoses(T_world_keyframe.inverse(), result.T_world_lidar)
                : Pose3d::Identity();
-  kf->features = std::move(features);
+  kf->features = features; // a copy: the frame's result keeps its own
   kf->map_point_ids.assign(kf->features.size(), kNoMapPoint);
   kf->odometry_map_scans = map_scans;
 

@@ -307,7 +307,7 @@ struct Odometry::Impl
              double frame_interval_s,
              std::string& source) const;
   KeyFrame::Ptr makeKeyFrame(const OdometryFrameResult& result,
-                             RasterFeatureSet&& features,
+                             const RasterFeatureSet& features,
                              const pcl::PointCloud<pcl::PointXYZI>& cloud);
   void insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud,
                      const Pose3d& T_world_lidar);

@@ -72,6 +72,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   frame.T_motion_prior = T_world_last.inverse() * frame.T_world_prior;
   if (frame.times && num_poses >= 2)
     frame.xi_sweep = logSE3(frame.T_motion_prior) / frame.dt;
+  result.deskew_applied = frame.xi_sweep.has_value();
   result.timings.deskew_ms = watch.getTime();
 
   extractFeatures(frame, result); // 1-3
@@ -87,7 +88,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     result.status = TrackingStatus::kFirstFrame;
     result.message = "first frame: key-frame 0";
     watch.reset();
-    result.keyframe = makeKeyFrame(result, std::move(*frame.features), frame.input);
+    result.keyframe = makeKeyFrame(result, *frame.features, frame.input);
     result.reference_keyframe = result.keyframe->id;
     result.timings.keyframe_ms = watch.getTime();
     result.timings.total_ms = frame.watch.getTime();
@@ -173,6 +174,7 @@ Odometry::Impl::extractFeatures(Frame& frame, OdometryFrameResult& result)
     }
   }
   result.num_features = static_cast<int>(frame.features->size());
+  result.features = frame.features;
 }
 
 RigidRansacResult
@@ -448,7 +450,7 @@ Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
   const bool reanchor = frames_without_tracking + 1 >= kReanchorAfterFrames && useful;
   if ((tracked && (paper_rule || far || weak)) || reanchor) {
     result.keyframe =
-        makeKeyFrame(result, std::move(*frame.features), keptCloud(frame, result));
+        makeKeyFrame(result, *frame.features, keptCloud(frame, result));
     result.reference_keyframe = result.keyframe->id;
     result.T_keyframe_lidar = Pose3d::Identity();
     if (!tracked) {

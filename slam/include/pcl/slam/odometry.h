@@ -73,6 +73,11 @@ struct OdometryFrameResult
   /// Non-null when this frame became a key-frame (then reference_keyframe is its id).
   KeyFrame::Ptr keyframe;
 
+  /// This frame's ORB features in its LiDAR frame (null when the scan was skipped
+  /// before feature extraction): for a placement on a map, say, without computing them
+  /// again. A key-frame holds its own copy.
+  std::shared_ptr<const RasterFeatureSet> features;
+
   bool ground_found = false;
   int num_features = 0; ///< ORB features of this frame
   int num_matches = 0;  ///< descriptor matches with the reference key-frame
@@ -88,6 +93,9 @@ struct OdometryFrameResult
   /// "azimuth": from the azimuth; empty: none; the first two frames have no motion to
   /// apply yet), and whether it was compensated again with the estimated motion.
   std::string deskew_times;
+  /// The points (features, dense step) were compensated with a motion: times and a
+  /// motion from the frames before (not the first two frames of a run).
+  bool deskew_applied = false;
   bool deskew_second_pass = false;
   OdometryTimings timings;
 };
