@@ -249,32 +249,45 @@ struct MapLocalization::Impl
   OdometryParams odometry_params;
   MapLocalizationParams params;
   std::unique_ptr<Odometry> odometry;
+  /// The odometry missed frames (it rested while the map tracked, or the input
+  /// jumped): its local map is stale, it starts afresh before its next frame.
+  bool odometry_stale = false;
   bool started = false;
   std::optional<Pose3d> T_world_previous; ///< the last frame's pose on the map
-  std::optional<double> last_timestamp_s;  ///< of the last scan the odometry saw
+  std::optional<double> last_timestamp_s;  ///< of the last scan
   Pose3d T_odom_previous = Pose3d::Identity();
   bool have_odom_previous = false;
   int tracking_only = 0;
+  /// The motion per second between the last two frames, when the map confirmed both.
+  std::optional<Twist> map_velocity;
+  bool previous_confirmed = false; ///< the map confirmed the last frame
   /// Alignment targets of session key-frames (their own frame), the newest used last.
   std::map<KeyFrameId, std::shared_ptr<const PointToPlaneTarget>> targets;
   std::deque<KeyFrameId> target_order;
   static constexpr std::size_t kMaxTargets = 32;
 
-  /// The scan motion-compensated with this frame's estimated motion \a step (from the
-  /// last frame), as the odometry compensates what it tracks: point times from the scan
+  /// Seconds since the last scan (0 when unknown or not increasing).
+  double interval(double timestamp_s) const
+  {
+    if (!last_timestamp_s)
+      return 0.0;
+    const double dt =
+        (timestamp_s - *last_timestamp_s) * odometry_params.deskew.seconds_per_timestamp;
+    return dt > 0.0 && std::isfinite(dt) ? dt : 0.0;
+  }
+
+  /// The scan motion-compensated with this frame's motion \a step over \a dt seconds,
+  /// as the odometry compensates what it tracks: point times from the scan
   /// (\a point_times_s) or, with DeskewMode::kOn, from the azimuth. The scan itself
-  /// when there are no times or no motion yet (the first frame).
+  /// when there are no times or no motion (dt 0).
   pcl::PointCloud<pcl::PointXYZI>::ConstPtr
   compensated(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
               const std::vector<float>& point_times_s,
-              double timestamp_s,
+              double dt,
               const Pose3d& step) const
   {
     const DeskewParams& d = odometry_params.deskew;
-    if (!scan || scan->empty() || d.mode == DeskewMode::kOff || !last_timestamp_s)
-      return scan;
-    const double dt = (timestamp_s - *last_timestamp_s) * d.seconds_per_timestamp;
-    if (!(dt > 0.0) || !std::isfinite(dt))
+    if (!scan || scan->empty() || d.mode == DeskewMode::kOff || !(dt > 0.0))
       return scan;
     std::vector<float> times;
     if (point_times_s.size() == scan->size())
@@ -366,6 +379,30 @@ struct MapLocalization::Impl
     return std::nullopt;
   }
 
+  /// The odometry on this frame (started afresh when stale), and its motion since
+  /// the frame before (identity for its first frame).
+  OdometryFrameResult runOdometry(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+                                  double timestamp_s,
+                                  std::size_t frame_index,
+                                  const std::vector<float>& point_times_s,
+                                  Pose3d& step)
+  {
+    restartOdometryIfStale();
+    const OdometryFrameResult odo =
+        odometry->processFrame(scan, timestamp_s, frame_index, point_times_s);
+    step = odometryStep(odo);
+    return odo;
+  }
+
+  void restartOdometryIfStale()
+  {
+    if (!odometry_stale)
+      return;
+    odometry = std::make_unique<Odometry>(odometry_params);
+    have_odom_previous = false;
+    odometry_stale = false;
+  }
+
   /// The odometry's motion since the previous frame (identity for the first).
   Pose3d odometryStep(const OdometryFrameResult& odo)
   {
@@ -376,10 +413,23 @@ struct MapLocalization::Impl
     return normalizedPose(step);
   }
 
+  /// The map confirmed \a T_world_lidar this frame (\a dt s after the last scan).
+  void confirm(const Pose3d& T_world_lidar, double dt)
+  {
+    if (previous_confirmed && T_world_previous && dt > 0.0)
+      map_velocity = logSE3(T_world_previous->inverse() * T_world_lidar) / dt;
+    else
+      map_velocity.reset();
+    previous_confirmed = true;
+    tracking_only = 0;
+    T_world_previous = T_world_lidar;
+  }
+
   /// No alignment and no placement: carried on by the odometry, or given up.
   void carryOn(LocalizationFrame& f, const Pose3d& predicted, const std::string& why)
   {
     ++tracking_only;
+    previous_confirmed = false;
     f.T_world_lidar = predicted;
     T_world_previous = predicted;
     f.status = tracking_only > params.max_tracking_only_frames ? LocalizationStatus::kLost
@@ -389,7 +439,8 @@ struct MapLocalization::Impl
 
   void takePlacement(LocalizationFrame& f,
                      const Placement& placement,
-                     const std::optional<Pose3d>& predicted)
+                     const std::optional<Pose3d>& predicted,
+                     double dt)
   {
     f.status = LocalizationStatus::kLocalized;
     f.placed = true;
@@ -400,17 +451,16 @@ struct MapLocalization::Impl
       f.jump_m = (placement.T_world_lidar.translation() - predicted->translation()).norm();
       f.jump = f.jump_m > params.jump_m;
       if (f.jump) {
-        // Kidnapped: the odometry's local map is of another place; start it afresh.
-        odometry = std::make_unique<Odometry>(odometry_params);
-        have_odom_previous = false;
-        last_timestamp_s.reset();
+        // Kidnapped: the odometry's local map is of another place, and the motion
+        // since the last frame is unknown.
+        odometry_stale = true;
+        previous_confirmed = false;
         char text[64];
         std::snprintf(text, sizeof text, "jump of %.1f m: ", f.jump_m);
         f.message = text + f.message;
       }
     }
-    tracking_only = 0;
-    T_world_previous = placement.T_world_lidar;
+    confirm(placement.T_world_lidar, dt);
   }
 };
 
@@ -456,14 +506,35 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   LocalizationFrame f;
   f.frame_index = frame_index;
   f.timestamp_s = timestamp_s;
-  const OdometryFrameResult odo =
-      m.odometry->processFrame(raw_scan, timestamp_s, frame_index, point_times_s);
-  const Pose3d step = m.odometryStep(odo);
+  const double dt = m.interval(timestamp_s);
+  // The motion of the last two frames the map confirmed, over this frame's interval.
+  std::optional<Pose3d> velocity_step;
+  if (m.map_velocity && dt > 0.0)
+    velocity_step = normalizedPose(expSE3(*m.map_velocity * dt));
+
+  // The frame's motion: from the map's velocity while the map tracks (the odometry
+  // rests), else from the odometry (from the map's velocity for its first frame).
+  Pose3d step = Pose3d::Identity();
+  std::optional<OdometryFrameResult> odo;
+  const auto track = [&] {
+    const bool fresh = m.odometry_stale || !m.have_odom_previous;
+    odo = m.runOdometry(raw_scan, timestamp_s, frame_index, point_times_s, step);
+    if (fresh && velocity_step)
+      step = *velocity_step;
+    f.odometry_ran = true;
+  };
+  const bool map_tracks = m.params.track_on_map && m.previous_confirmed && velocity_step &&
+                          raw_scan && !raw_scan->empty();
+  if (map_tracks) {
+    step = *velocity_step;
+    m.odometry_stale = true;
+  } else {
+    track();
+  }
   // The map's key-frames were compensated: so is the scan aligned or placed on them.
   const pcl::PointCloud<pcl::PointXYZI>::ConstPtr scan =
-      m.compensated(raw_scan, point_times_s, timestamp_s, step);
-  if (odo.status != TrackingStatus::kSkipped)
-    m.last_timestamp_s = timestamp_s;
+      m.compensated(raw_scan, point_times_s, dt, step);
+  m.last_timestamp_s = timestamp_s; // the next step starts from this frame's pose
   std::optional<Pose3d> predicted;
   if (m.T_world_previous)
     predicted = normalizedPose(*m.T_world_previous * step);
@@ -480,16 +551,30 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
       f.correspondences = a->correspondences;
       f.rmse_m = a->rmse_m;
       f.message = "aligned to key-frame " + std::to_string(a->keyframe);
-      m.tracking_only = 0;
-      m.T_world_previous = a->T_world_lidar;
+      m.confirm(a->T_world_lidar, dt);
       f.time_ms = watch.getTime();
       return f;
     }
   }
-  // The map did not confirm the prediction (or there is none): place the scan anew.
-  const Placement placement = m.localizer.place(scan);
+  // The map did not confirm the prediction (or there is none): the odometry carries
+  // the pose from here, and the scan is placed anew with its features. Features the
+  // odometry could not compensate yet (its first two frames) are computed again from
+  // the compensated scan.
+  if (!odo)
+    track();
+  Placement placement;
+  if (!odo->features || odo->features->empty() || !scan || scan->empty()) {
+    placement.message = "no features: " + odo->message;
+  } else if (scan != raw_scan && !odo->deskew_applied) {
+    placement = m.localizer.place(scan);
+  } else {
+    KeyFrame query;
+    query.features = *odo->features;
+    query.cloud = scan;
+    placement = m.localizer.place(query);
+  }
   if (placement.success)
-    m.takePlacement(f, placement, predicted);
+    m.takePlacement(f, placement, predicted, dt);
   else if (predicted)
     m.carryOn(f, *predicted, "not confirmed (" + why + "); not placed (" + placement.message + ")");
   else
@@ -508,8 +593,18 @@ MapLocalization::addSkippedScan(double timestamp_s,
   LocalizationFrame f;
   f.frame_index = frame_index;
   f.timestamp_s = timestamp_s;
-  const OdometryFrameResult odo = m.odometry->skipFrame(timestamp_s, frame_index, reason);
-  const Pose3d step = m.odometryStep(odo);
+  // The odometry predicts the skipped frame; after resting it has nothing to predict
+  // from, and the map's velocity does.
+  const double dt = m.interval(timestamp_s);
+  Pose3d step = Pose3d::Identity();
+  if (m.odometry_stale || !m.have_odom_previous) {
+    if (m.map_velocity && dt > 0.0)
+      step = normalizedPose(expSE3(*m.map_velocity * dt));
+  } else {
+    step = m.odometryStep(m.odometry->skipFrame(timestamp_s, frame_index, reason));
+    f.odometry_ran = true;
+  }
+  m.last_timestamp_s = timestamp_s;
   if (m.T_world_previous)
     m.carryOn(f, normalizedPose(*m.T_world_previous * step), "skipped: " + reason);
   else

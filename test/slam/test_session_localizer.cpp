@@ -17,6 +17,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <string>
+#include <vector>
 
 namespace {
 
@@ -182,19 +183,25 @@ TEST(SessionLocalizer, ASessionLoadedWithoutCloudsPlacesTheSameScans)
   EXPECT_THROW(sessionCloud(session, last), SessionError);
 }
 
-/// A second pass localized scan after scan (cold start, then tracking on the map), and
-/// a kidnapping: 100 frames dropped from the input are reported as a jump and the pose
-/// is right again within 5 frames.
+/// A second pass localized scan after scan (cold start, then tracking on the map), with
+/// the odometry resting while the map confirms the frames and with it tracking every
+/// frame; and a kidnapping: 100 frames dropped from the input are reported as a jump
+/// and the pose is right again within 5 frames.
 TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
 {
   const MappedLoop m = mapLoop();
-  {
-    MapLocalization localization(*m.localizer, m.odometry);
-    int localized = 0;
+  std::vector<Pose3d> poses[2];
+  for (const bool track_on_map : {true, false}) {
+    MapLocalizationParams params;
+    params.track_on_map = track_on_map;
+    MapLocalization localization(*m.localizer, m.odometry, params);
+    int localized = 0, odometry_frames = 0;
     double sum_sq = 0.0, max_error_m = 0.0;
     for (std::size_t i = 160; i < 200; ++i) {
       const LocalizationFrame f = localization.addScan(simulateFrame(*m.sim, i),
                                                        m.sim->timestamp(i), i);
+      poses[track_on_map ? 0 : 1].push_back(f.T_world_lidar);
+      odometry_frames += f.odometry_ran ? 1 : 0;
       const double error_m = (f.T_world_lidar.translation() - m.truth(i).translation()).norm();
       if (f.status == LocalizationStatus::kLocalized) {
         ++localized;
@@ -208,12 +215,20 @@ TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
         EXPECT_FALSE(f.jump) << "frame " << i << ": " << f.message;
     }
     const double rmse = std::sqrt(sum_sq / std::max(1, localized));
-    std::printf("simulated second pass, 40 frames: %d localized, map-frame RMSE %.3f m, "
-                "largest %.3f m\n",
-                localized, rmse, max_error_m);
+    std::printf("simulated second pass, 40 frames, track_on_map %d: %d localized, the "
+                "odometry on %d, map-frame RMSE %.3f m, largest %.3f m\n",
+                track_on_map ? 1 : 0, localized, odometry_frames, rmse, max_error_m);
     EXPECT_GE(localized, 38);
     EXPECT_LT(rmse, 0.10);
+    if (track_on_map)
+      EXPECT_LE(odometry_frames, 4) << "the map tracks once two frames are confirmed";
+    else
+      EXPECT_EQ(odometry_frames, 40);
   }
+  // Predicting by the map's velocity instead of the odometry lands on the same poses.
+  for (std::size_t j = 0; j < poses[0].size(); ++j)
+    EXPECT_LT((poses[0][j].translation() - poses[1][j].translation()).norm(), 0.05)
+        << "frame " << 160 + j;
   {
     // Frames 20-39, then 140-149: the input jumps 100 m ahead.
     MapLocalization localization(*m.localizer, m.odometry);
@@ -230,8 +245,9 @@ TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
       }
       jump_reported = jump_reported || f.jump;
       // Never localized at the stale place the odometry carries on from.
-      if (f.status == LocalizationStatus::kLocalized)
+      if (f.status == LocalizationStatus::kLocalized) {
         EXPECT_LT(error_m, 2.0) << "frame " << i << " localized off: " << f.message;
+      }
       if (first_right_after_jump < 0 && f.status == LocalizationStatus::kLocalized &&
           error_m < 0.2)
         first_right_after_jump = static_cast<int>(i - 140);

@@ -143,6 +143,13 @@ struct MapLocalizationParams
   /// dense alignment from a stale prediction can lock onto a street that looks the
   /// same (a 200-frame kidnapping was "localized" 137 m off that way).
   int max_realign_frames = 5;
+  /// While the map confirms every frame, the odometry rests: the motion between the
+  /// last two confirmed frames predicts the next one (and compensates its sweep), as a
+  /// map-based localizer tracks. The first frame the map does not confirm starts the
+  /// odometry afresh, and it carries the pose until the map confirms it again. false:
+  /// the odometry tracks every frame and predicts each alignment (slower: the front end
+  /// and the map alignment both run on every frame).
+  bool track_on_map = true;
   /// \brief Whether all values are usable; on failure \a why (if not null) says which.
   bool isValid(std::string* why = nullptr) const;
 };
@@ -157,6 +164,7 @@ struct LocalizationFrame
   /// last pose carried on by the odometry, or identity before any placement).
   Pose3d T_world_lidar = Pose3d::Identity();
   bool placed = false;   ///< placed by retrieval this frame (cold start, relocalization)
+  bool odometry_ran = false; ///< the odometry tracked this frame (see track_on_map)
   bool jump = false;     ///< that placement was a jump away from the prediction
   double jump_m = 0.0;   ///< how far
   KeyFrameId keyframe = 0; ///< the session key-frame it was aligned to or placed on
@@ -167,10 +175,12 @@ struct LocalizationFrame
 };
 
 /// \brief Localization of a sequence on a session (issue 13): the first scan is placed
-/// by SessionLocalizer (or given a pose), then every scan is tracked frame to frame by
-/// the odometry and aligned to the session's key-frame clouds near its prediction.
-/// When the map does not confirm a frame, retrieval runs again: a placement far from
-/// the prediction is reported as a jump (kidnapping) and taken.
+/// by SessionLocalizer (or given a pose), then every scan is aligned to the session's
+/// key-frame clouds near its prediction. The prediction is the motion of the last two
+/// frames while the map confirms them (MapLocalizationParams::track_on_map), else the
+/// odometry's frame-to-frame motion. When the map does not confirm a frame, retrieval
+/// runs again on the odometry's features of the scan: a placement far from the
+/// prediction is reported as a jump (kidnapping) and taken.
 class MapLocalization
 {
 public:
