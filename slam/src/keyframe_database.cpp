@@ -154,7 +154,6 @@ KeyFrameDatabase::add(const KeyFrame::ConstPtr& keyframe,
   entry.travel_m = advanceTail(*keyframe, T_world_keyframe);
   if (params_.dense_check && keyframe->cloud)
     entry.dense_target = dense_store_->putVector(makeDenseTarget(*keyframe->cloud, params_));
-  entry.first_feature = static_cast<std::uint32_t>(feature_slot_.size());
   index(*keyframe, static_cast<std::uint32_t>(entries_.size()));
   slot_of_.emplace(keyframe->id, entries_.size());
   entries_.push_back(std::move(entry));
@@ -164,9 +163,10 @@ void
 KeyFrameDatabase::index(const KeyFrame& keyframe, std::uint32_t slot)
 {
   if (params_.retrieval != AppearanceRetrieval::kNone) {
-    for (const auto& d : keyframe.features.descriptors) {
-      const auto g = static_cast<std::uint32_t>(feature_slot_.size());
-      feature_slot_.push_back(slot);
+    for (std::size_t i = 0; i < keyframe.features.size(); ++i) {
+      const OrbDescriptor& d = keyframe.features.descriptors[i];
+      const auto g = static_cast<std::uint32_t>(features_.size());
+      features_.push_back({d, keyframe.features.points[i].angle_deg, slot});
       for (int t = 0; t < params_.num_hash_tables; ++t) {
         Bucket& bucket = buckets_[substringKey(d, t)];
         if (bucket.saturated)
@@ -192,7 +192,7 @@ KeyFrameDatabase::memoryUsage() const
   MemoryUsage m;
   for (const Entry& e : entries_)
     (dense_store_->spilled() ? m.dense_targets_on_disk : m.dense_targets) += e.dense_target.bytes;
-  m.appearance_index = feature_slot_.capacity() * sizeof(std::uint32_t);
+  m.appearance_features = features_.capacity() * sizeof(IndexedFeature);
   // unordered_map node (key, vector, next pointer, malloc header) plus its bucket slot.
   const std::size_t node_bytes =
       sizeof(std::uint32_t) + sizeof(Bucket) + 2 * sizeof(void*) + sizeof(void*);
@@ -318,9 +318,9 @@ KeyFrameDatabase::scoreAppearance(const KeyFrame& query,
                               std::vector<double>& votes) const
 {
   votes.assign(entries_.size(), 0.0);
-  if (params_.retrieval == AppearanceRetrieval::kNone || feature_slot_.empty())
+  if (params_.retrieval == AppearanceRetrieval::kNone || features_.empty())
     return;
-  const std::size_t total = feature_slot_.size();
+  const std::size_t total = features_.size();
   std::size_t max_bucket = std::max<std::size_t>(
       64,
       static_cast<std::size_t>(params_.max_bucket_fraction * static_cast<double>(total)));
@@ -337,8 +337,8 @@ KeyFrameDatabase::scoreAppearance(const KeyFrame& query,
           continue;
         const double w = std::log(static_cast<double>(total) / it->second.features.size());
         for (const std::uint32_t g : it->second.features)
-          if (eligible[feature_slot_[g]])
-            votes[feature_slot_[g]] += w;
+          if (eligible[features_[g].slot])
+            votes[features_[g].slot] += w;
       }
     return;
   }
@@ -374,17 +374,14 @@ KeyFrameDatabase::scoreAppearance(const KeyFrame& query,
         if (seen[g] == stamp)
           continue;
         seen[g] = stamp;
-        const std::uint32_t slot = feature_slot_[g];
+        const IndexedFeature& feature = features_[g];
+        const std::uint32_t slot = feature.slot;
         if (!eligible[slot])
           continue;
-        const Entry& e = entries_[slot];
-        const std::size_t j = g - e.first_feature;
-        const int d =
-            hammingDistance(descriptors[i], e.keyframe->features.descriptors[j]);
+        const int d = hammingDistance(descriptors[i], feature.descriptor);
         if (d > params_.retrieval_max_hamming)
           continue;
-        double dyaw =
-            e.keyframe->features.points[j].angle_deg - query.features.points[i].angle_deg;
+        double dyaw = feature.angle_deg - query.features.points[i].angle_deg;
         dyaw -= 360.0 * std::floor(dyaw / 360.0);
         found.push_back({slot, d, static_cast<int>(dyaw / 360.0 * bins) % bins});
       }

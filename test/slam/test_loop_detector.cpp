@@ -327,7 +327,7 @@ TEST(LoopDetector, SaturatedBucketsStopGrowing)
   }
   // 40 alike descriptors per key-frame fill their 16 buckets past 256 within 7
   // key-frames; from then on only the buckets of the 10 distinct ones (one entry per
-  // key-frame each) and the feature-to-slot table grow.
+  // key-frame each) grow; the packed descriptors are counted apart.
   const std::size_t after_100 = capped.memoryUsage().appearance_index;
   std::printf("[ index ] after 10 key-frames %zu B, after 100 %zu B\n", after_10, after_100);
   LoopDetectorParams uncapped_params = params;

@@ -102,7 +102,8 @@ public:
   {
     std::size_t dense_targets = 0;         ///< in memory
     std::size_t dense_targets_on_disk = 0; ///< spilled to disk
-    std::size_t appearance_index = 0;
+    std::size_t appearance_index = 0;    ///< the substring buckets
+    std::size_t appearance_features = 0; ///< the indexed descriptors, packed for scoring
   };
   MemoryUsage
   memoryUsage() const;
@@ -157,7 +158,6 @@ private:
     BlobStore::Handle dense_target;
     Pose3d T_world_keyframe = Pose3d::Identity(); ///< own pose (no PoseSource)
     double travel_m = 0.0;           ///< distance travelled up to this key-frame
-    std::uint32_t first_feature = 0; ///< global index of its first indexed feature
   };
   /// The newest key-frame seen (added or skipped): the end of the travelled path.
   struct Tail
@@ -202,7 +202,16 @@ private:
   std::optional<Tail> tail_;
   std::size_t skipped_ = 0;
   std::unordered_map<KeyFrameId, std::size_t> slot_of_;
-  std::vector<std::uint32_t> feature_slot_; ///< global feature index -> slot
+  /// An indexed feature as scoring reads it: packed in one array by global feature
+  /// index, so that a bucket's candidates cost one memory access each rather than a
+  /// walk through their key-frame's vectors (the retrieval's hot loop).
+  struct IndexedFeature
+  {
+    OrbDescriptor descriptor;
+    float angle_deg = 0.0f;
+    std::uint32_t slot = 0;
+  };
+  std::vector<IndexedFeature> features_; ///< by global feature index
   /// key (table << 16 | substring) -> bucket
   std::unordered_map<std::uint32_t, Bucket> buckets_;
 };
