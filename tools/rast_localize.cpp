@@ -134,6 +134,19 @@ run(int argc, char** argv)
   args.addInt("max-tracking-only",
               "frames the odometry may carry the pose alone before the run counts as lost",
               &params.max_tracking_only_frames);
+  // Placement thresholds (SessionLocalizerParams::verification): fewer accept more
+  // placements, between passes that share less, at the risk of a wrong one.
+  const rast::LoopDetectorParams loop_defaults;
+  int place_min_score = loop_defaults.min_appearance_score;
+  int place_min_initial = loop_defaults.min_initial_inliers;
+  int place_min_inliers = loop_defaults.min_inliers;
+  args.addInt("place-min-score",
+              "placement: appearance votes a key-frame needs to be verified",
+              &place_min_score);
+  args.addInt("place-min-initial",
+              "placement: RANSAC inliers of the first (ratio-test) matches", &place_min_initial);
+  args.addInt("place-min-inliers", "placement: RANSAC inliers after guided matching",
+              &place_min_inliers);
   args.addSwitch("software-render", "render.png with OpenCV instead of VTK (faster)",
                  &software_render);
   args.addSwitch("quiet", "no progress bar", &quiet);
@@ -149,6 +162,11 @@ run(int argc, char** argv)
   std::string why;
   if (!params.isValid(&why))
     throw std::invalid_argument("invalid parameters: " + why);
+  if (place_min_score < 1 || place_min_initial < 3 || place_min_inliers < 3)
+    throw std::invalid_argument("bad placement thresholds: -place-min-score " +
+                                std::to_string(place_min_score) + " (>= 1), -place-min-initial " +
+                                std::to_string(place_min_initial) + " (>= 3), -place-min-inliers " +
+                                std::to_string(place_min_inliers) + " (>= 3)");
   std::optional<rast::Pose3d> start;
   if (!initial_pose.empty())
     start = parsePose(initial_pose);
@@ -187,6 +205,9 @@ run(int argc, char** argv)
 
   rast::SessionLocalizerParams localizer_params;
   rast::applySensorPreset(preset, localizer_params.odometry);
+  localizer_params.verification.min_appearance_score = place_min_score;
+  localizer_params.verification.min_initial_inliers = place_min_initial;
+  localizer_params.verification.min_inliers = place_min_inliers;
   std::string deskew_reason, deskew_timing;
   applyDeskewFlags(deskew, reader, static_cast<std::size_t>(stride),
                    localizer_params.odometry.deskew, deskew_reason, deskew_timing);
@@ -331,6 +352,10 @@ run(int argc, char** argv)
   summary["stop_signal"] = stopRequested() ? json(stopSignalName()) : json(nullptr);
   summary["deskew"] = {{"mode", rast::toString(localizer_params.odometry.deskew.mode)},
                        {"reason", deskew_reason}};
+  summary["placement"] = {{"min_score", place_min_score},
+                          {"min_initial_inliers", place_min_initial},
+                          {"min_inliers", place_min_inliers},
+                          {"track_on_map", params.track_on_map}};
   summary["render_backend"] = render.backend;
   summary["error"] = nullptr;
   outputs.publish(summary);

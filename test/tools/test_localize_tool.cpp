@@ -87,6 +87,8 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_GE(summary["frames_localized"].get<int>(), 29);
   EXPECT_FALSE(summary["initial_pose_given"].get<bool>());
   EXPECT_TRUE(summary["jumps"].empty());
+  EXPECT_EQ(summary["placement"]["min_inliers"].get<int>(), 40);
+  EXPECT_TRUE(summary["placement"]["track_on_map"].get<bool>());
 
   // In the map's frame: where the SLAM run put the same scans.
   const auto slam = pcl::rast::readTrajectory((m.slam_out / "poses_kitti.txt").string());
@@ -153,6 +155,11 @@ TEST_F(LocalizeTool, BadSessionsAndArgumentsAreRefusedBeforeAnyWork)
                 " -initial-pose '1 2 3'"),
             1);
   EXPECT_NE(readFile(log_).find("need 7 finite numbers"), std::string::npos) << readFile(log_);
+  EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
+                " -place-min-inliers 2"),
+            1);
+  EXPECT_NE(readFile(log_).find("-place-min-inliers 2 (>= 3)"), std::string::npos)
+      << readFile(log_);
   EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(m.session)), 1);
   EXPECT_FALSE(fs::exists(out / "summary.json"));
   EXPECT_NO_THROW(pcl::rast::readTrajectory((m.slam_out / "poses_kitti.txt").string()));
