@@ -21,7 +21,8 @@ revisits the first drive's roads. Then:
 farther than 20 m from every one.
 
   scripts/eval_sessions.py [-b BUILD] [-o OUT] [-q SEQ] [-m MAP_LAST] [-r SEED]
-                           [-n COLD_STARTS] [-l LAST] [--keep]
+                           [-n COLD_STARTS] [-l LAST] [--keep] [--no-merge]
+                           [--localize-args ARGS]
 """
 import argparse
 import csv
@@ -167,6 +168,9 @@ def main():
     ap.add_argument("--keep", action="store_true", help="keep the simulated scans")
     ap.add_argument("--no-merge", action="store_true",
                     help="skip the multi-session merge (the longest step)")
+    ap.add_argument("--localize-args", default="",
+                    help="extra arguments of every pcl_rast_localize run, e.g. "
+                         "'-place-min-inliers 30'")
     a = ap.parse_args()
     tools = os.path.join(a.build, "tools")
     out = os.path.join(a.out, a.seq)
@@ -177,6 +181,8 @@ def main():
                 % (a.seed, " (a TUNING seed: do not report)" if a.seed < 100 else ""))
     print("eval_sessions (simulated): KITTI %s, first drive frames 0-%d, second drive the "
           "rest; %s" % (a.seq, a.map_last, settings), flush=True)
+    if a.localize_args:
+        print("pcl_rast_localize with %s" % a.localize_args, flush=True)
 
     sim = os.path.join(out, "sim")
     if not os.path.exists(os.path.join(sim, "poses.txt")):
@@ -193,7 +199,8 @@ def main():
     common = ["-quiet", "-software-render"]
 
     def tool(name, args, log):
-        rc, s = run([os.path.join(tools, name)] + args + common, os.path.join(out, log))
+        extra = a.localize_args.split() if name == "pcl_rast_localize" else []
+        rc, s = run([os.path.join(tools, name)] + args + extra + common, os.path.join(out, log))
         if rc != 0:
             sys.exit("%s failed (exit %d): see %s/%s" % (name, rc, out, log))
         return s

@@ -123,6 +123,66 @@ struct GuidedEstimate
   RigidRansacResult ransac;
 };
 
+/// The nearest-descriptor matches whose ORB rotation lies in the best window of three
+/// rotation bins, then RANSAC (LoopDetectorParams::rotation_filtered_matching).
+/// Returns why the pair is rejected (after \a failure of the ratio test), or nothing.
+std::string
+rotationFilteredEstimate(const LoopDetectorParams& params,
+                         const KeyFrame& query,
+                         const KeyFrame& candidate,
+                         LoopVerification& v,
+                         FirstEstimate& first,
+                         const std::string& failure)
+{
+  HammingMatchParams nearest = params.matching;
+  nearest.ratio = 1.0;
+  nearest.mutual_check = false;
+  const pcl::Correspondences all = matchHamming(query.features, candidate.features, nearest);
+  const double bin_deg = params.rotation_bin_deg > 0.0 ? params.rotation_bin_deg : 10.0;
+  const int bins = std::max(3, static_cast<int>(std::lround(360.0 / bin_deg)));
+  const auto binOf = [&](const pcl::Correspondence& c) {
+    double d = candidate.features.points[c.index_match].angle_deg -
+               query.features.points[c.index_query].angle_deg;
+    d -= 360.0 * std::floor(d / 360.0);
+    return static_cast<int>(d / 360.0 * bins) % bins;
+  };
+  std::vector<int> histogram(bins, 0);
+  for (const pcl::Correspondence& c : all)
+    ++histogram[binOf(c)];
+  int best = 0, best_count = -1;
+  for (int b = 0; b < bins; ++b) {
+    const int count =
+        histogram[(b + bins - 1) % bins] + histogram[b] + histogram[(b + 1) % bins];
+    if (count > best_count) {
+      best_count = count;
+      best = b;
+    }
+  }
+  pcl::Correspondences kept;
+  for (const pcl::Correspondence& c : all) {
+    const int off = (binOf(c) - best + bins) % bins;
+    if (off == 0 || off == 1 || off == bins - 1)
+      kept.push_back(c);
+  }
+  RigidRansacResult ransac =
+      static_cast<int>(kept.size()) >= params.min_initial_inliers
+          ? estimateRigidRansac(
+                query.features.points, candidate.features.points, kept, first.ransac_params)
+          : RigidRansacResult();
+  const double ratio =
+      kept.empty() ? 0.0 : static_cast<double>(ransac.inlier_indices.size()) / kept.size();
+  if (!ransac.success)
+    return failure + "; rotation-filtered: " + std::to_string(ransac.inlier_indices.size()) +
+           " RANSAC inliers of " + std::to_string(kept.size()) + " matches";
+  first.matches = std::move(kept);
+  first.ransac = std::move(ransac);
+  v.num_matches = static_cast<int>(first.matches.size());
+  v.num_initial_inliers = static_cast<int>(first.ransac.inlier_indices.size());
+  v.inlier_ratio = ratio;
+  v.T_candidate_query = first.ransac.T_target_source;
+  return {};
+}
+
 /// Steps 1-3: ORB matches with the ratio test (paper), seeded RANSAC on them (paper),
 /// and the inlier ratio: in a repetitive scene many matches agree with no single
 /// motion. When that fails, the same under the odometry guess (distance candidates):
@@ -162,8 +222,11 @@ firstEstimate(const LoopDetectorParams& params,
   if (failure.empty())
     return {};
   const double gate = std::min(tolerance.translation_m, params.guess_gate_max_m);
-  if (!(gate > 0.0))
-    return failure;
+  if (!(gate > 0.0)) {
+    if (!params.rotation_filtered_matching)
+      return failure;
+    return rotationFilteredEstimate(params, query, candidate, v, first, failure);
+  }
   HammingMatchParams gated = params.matching;
   gated.ratio = 1.0;
   gated.mutual_check = false;

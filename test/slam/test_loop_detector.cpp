@@ -680,6 +680,26 @@ TEST(LoopDetectorRealData, DistanceCandidateMatchedUnderTheOdometryGuess)
   EXPECT_FALSE(no_guess.from_guess);
 }
 
+/// The same revisit without any guess, as a placement on a map of another run meets
+/// it: the nearest descriptors that agree on one ORB rotation find it
+/// (rotation_filtered_matching), and it is exact.
+TEST(LoopDetectorRealData, RevisitWithoutAGuessMatchedByRotationFilteredDescriptors)
+{
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  const GuessedPair pair(Kitti00World(data), 912, 3824, Eigen::Vector3d(2.0, 0.0, 0.0));
+  LoopDetectorParams params;
+  params.rotation_filtered_matching = true;
+  const LoopVerification v = pair.verify(params, GuessTolerance{});
+  std::printf("[ rotation-filtered ] accepted %d: %d matches, %d initial inliers, %d "
+              "inliers; %s\n",
+              v.accepted, v.num_matches, v.num_initial_inliers, v.num_inliers,
+              v.reason.c_str());
+  ASSERT_TRUE(v.accepted) << v.reason;
+  EXPECT_FALSE(v.from_guess);
+  EXPECT_LT(translationError(v.T_candidate_query, pair.truth), 0.1);
+  EXPECT_LT(rotationErrorDeg(v.T_candidate_query, pair.truth), 0.5);
+}
+
 /// KITTI 00 passes the place of frame 587 again the other way at frame 1402 (7.6 m
 /// apart, turned 154 deg), simulated. ORB pairs almost nothing between the two rasters
 /// (1-6 true matches); under the odometry guess 28 features pair, enough with
@@ -739,14 +759,19 @@ TEST(LoopDetector, NonOverlappingPairsRejected)
   const auto detector_ptr = s.detector();
   const LoopDetector& detector = *detector_ptr;
   const auto query = s.query(s.far_index, nextId());
-  // Every database key-frame, without a guess to check: never accepted.
+  // Every database key-frame, without a guess to check: never accepted, with the
+  // rotation-filtered matching of a placement too.
+  LoopDetectorParams filtered_params;
+  filtered_params.rotation_filtered_matching = true;
+  const LoopDetector filtered(filtered_params);
   int verified_with_inliers = 0;
   for (const auto& kf : s.database) {
-    const LoopVerification v =
-        detector.verify(*query, *kf, Pose3d::Identity(), GuessTolerance{});
-    EXPECT_FALSE(v.accepted) << "far query accepted against " << kf->id << ": "
-                             << v.reason;
-    verified_with_inliers += v.num_inliers > 0;
+    for (const LoopDetector* d : {&detector, &filtered}) {
+      const LoopVerification v = d->verify(*query, *kf, Pose3d::Identity(), GuessTolerance{});
+      EXPECT_FALSE(v.accepted) << "far query accepted against " << kf->id << " (filtered "
+                               << (d == &filtered) << "): " << v.reason;
+      verified_with_inliers += v.num_inliers > 0;
+    }
   }
   // detect() at the true (far) estimate: appearance candidates come, none is accepted.
   const LoopDetection d = detector.detect(*query, s.pose(s.far_index));
@@ -834,12 +859,16 @@ TEST(LoopDetector, RepetitiveStreetFromAnotherBlockRejected)
 {
   // Database: the street's first three blocks, a key-frame every 6 m.
   LoopDetector detector;
+  LoopDetectorParams filtered_params; // a placement's verification on a map
+  filtered_params.rotation_filtered_matching = true;
+  LoopDetector filtered(filtered_params);
   std::vector<KeyFrame::Ptr> database;
   for (int k = 0; k < 15; ++k) {
     const double x = 6.0 * k;
     auto kf = makeKeyFrame(static_cast<KeyFrameId>(k), repetitiveStreetScan(x, 100 + k));
     database.push_back(kf);
     detector.addKeyFrame(kf, pcl::rast::Pose3d(Eigen::Translation3d(x, 0.0, 0.0)));
+    filtered.addKeyFrame(kf, pcl::rast::Pose3d(Eigen::Translation3d(x, 0.0, 0.0)));
   }
   // Queries five blocks further, where the street looks exactly the same.
   int candidates = 0;
@@ -858,6 +887,9 @@ TEST(LoopDetector, RepetitiveStreetFromAnotherBlockRejected)
     const LoopVerification v =
         detector.verify(*query, *look_alike, Pose3d::Identity(), GuessTolerance{});
     EXPECT_FALSE(v.accepted) << v.reason;
+    const LoopVerification vf =
+        filtered.verify(*query, *look_alike, Pose3d::Identity(), GuessTolerance{});
+    EXPECT_FALSE(vf.accepted) << "rotation-filtered: " << vf.reason;
   }
   EXPECT_GT(candidates, 0) << "appearance retrieval should propose the look-alike blocks";
 }

@@ -110,6 +110,15 @@ struct LoopDetectorParams
   /// simulated), and the odometry guess, the gate and the dense check below already
   /// rule out the look-alikes the paper's 40 guard against.
   int min_guess_inliers = 20;
+  /// When the ratio-tested matches fail and there is no guess to gate by (a placement
+  /// on a map, whatever the pose): the nearest descriptor of every query feature
+  /// (mutual, no ratio test), kept when the ORB rotation it implies falls in the
+  /// best window of three rotation_bin_deg bins, then RANSAC on those. A revisit in
+  /// another run pairs few features that pass the ratio test (other traffic, another
+  /// lane, other noise), while its nearest descriptors agree on one relative yaw.
+  /// Off for loops within a run (their ratio test works, and distance candidates have
+  /// the odometry guess); SessionLocalizer turns it on.
+  bool rotation_filtered_matching = false;
   /// Guided matching: from the first estimate, every query feature is matched among the
   /// candidate features within this radius (ratio test 0.9, mutual), then RANSAC again.
   double guided_radius_m = 1.0;

@@ -32,8 +32,13 @@ struct SessionLocalizerParams
   OdometryParams odometry;
   /// Retrieval and verification. The key-frame and travel gaps that keep a loop away
   /// from its own recent past do not apply to a map from another run: they are set so
-  /// that every key-frame is eligible.
-  LoopDetectorParams verification;
+  /// that every key-frame is eligible. Another run pairs few features by the ratio
+  /// test: rotation_filtered_matching is on.
+  LoopDetectorParams verification = [] {
+    LoopDetectorParams p;
+    p.rotation_filtered_matching = true;
+    return p;
+  }();
   /// Key-frames verified per scan, best appearance first (>= 1).
   int max_candidates = 6;
   /// \brief Whether all values are usable; on failure \a why (if not null) says which.
