@@ -10,6 +10,7 @@
 #include <pcl/common/time.h>
 
 #include <algorithm>
+#include <cmath>
 #include <deque>
 #include <map>
 #include <optional>
@@ -34,13 +35,19 @@ SessionLocalizerParams::isValid(std::string* why) const
     return fail("verification: " + sub);
   if (max_candidates < 1)
     return fail("max_candidates must be >= 1, got " + std::to_string(max_candidates));
+  if (tentative_min_inliers != 0 && tentative_min_inliers < 3)
+    return fail("tentative_min_inliers must be 0 or >= 3, got " +
+                std::to_string(tentative_min_inliers));
   return true;
 }
 
 struct SessionLocalizer::Impl
 {
   Session session;
+  /// verification.min_inliers lowered to tentative_min_inliers: the detector accepts
+  /// tentative candidates, and place() sorts them out by min_inliers.
   SessionLocalizerParams params;
+  int min_inliers = 0; ///< the full threshold
   std::unique_ptr<LoopDetector> detector;
   std::size_t indexed = 0;
 };
@@ -68,6 +75,10 @@ SessionLocalizer::SessionLocalizer(Session session, const SessionLocalizerParams
     throw std::invalid_argument("SessionLocalizer: the session has no key-frames");
   impl_->params = params;
   impl_->params.verification = localizationParams(params.verification);
+  impl_->min_inliers = params.verification.min_inliers;
+  if (params.tentative_min_inliers > 0)
+    impl_->params.verification.min_inliers =
+        std::min(params.tentative_min_inliers, params.verification.min_inliers);
   impl_->session = std::move(session);
   impl_->detector = std::make_unique<LoopDetector>(impl_->params.verification);
   for (const KeyFrame::Ptr& kf : impl_->session.keyframes) {
@@ -142,6 +153,22 @@ SessionLocalizer::place(const KeyFrame& query_in) const
   p.candidates_retrieved = static_cast<int>(ranking.size());
   const GuessTolerance no_guess; // any pose: there is no prior
   std::string reasons;
+  const auto fill = [&](KeyFrameId id, const LoopVerification& v, const char* what) {
+    const KeyFrame& candidate = *impl_->session.keyframes.at(id);
+    p.keyframe = id;
+    p.T_world_lidar = normalizedPose(candidate.T_world_keyframe * v.T_candidate_query);
+    p.num_inliers = v.num_inliers;
+    p.dense_overlap = v.dense_overlap;
+    p.dense_rmse_m = v.dense_rmse_m;
+    char text[180];
+    std::snprintf(text, sizeof text,
+                  "%s key-frame %u (candidate %d of %d): %d inliers, dense overlap "
+                  "%.2f, rmse %.3f m",
+                  what, static_cast<unsigned>(id), p.candidates_verified,
+                  p.candidates_retrieved, v.num_inliers, v.dense_overlap, v.dense_rmse_m);
+    p.message = text;
+  };
+  std::optional<std::pair<KeyFrameId, LoopVerification>> tentative;
   for (const auto& [id, score] : ranking) {
     if (p.candidates_verified >= impl_->params.max_candidates)
       break;
@@ -155,19 +182,24 @@ SessionLocalizer::place(const KeyFrame& query_in) const
         reasons += (reasons.empty() ? "" : "; ") + std::to_string(id) + ": " + v.reason;
       continue;
     }
+    if (v.num_inliers < impl_->min_inliers) {
+      // Short of the full threshold: a later candidate may still reach it.
+      if (!tentative)
+        tentative.emplace(id, v);
+      if (reasons.size() < 400)
+        reasons += (reasons.empty() ? "" : "; ") + std::to_string(id) + ": tentative, " +
+                   std::to_string(v.num_inliers) + " inliers < " +
+                   std::to_string(impl_->min_inliers);
+      continue;
+    }
     p.success = true;
-    p.keyframe = id;
-    p.T_world_lidar = normalizedPose(candidate.T_world_keyframe * v.T_candidate_query);
-    p.num_inliers = v.num_inliers;
-    p.dense_overlap = v.dense_overlap;
-    p.dense_rmse_m = v.dense_rmse_m;
-    char text[160];
-    std::snprintf(text, sizeof text,
-                  "placed on key-frame %u (candidate %d of %d): %d inliers, dense overlap "
-                  "%.2f, rmse %.3f m",
-                  static_cast<unsigned>(id), p.candidates_verified, p.candidates_retrieved,
-                  v.num_inliers, v.dense_overlap, v.dense_rmse_m);
-    p.message = text;
+    fill(id, v, "placed on");
+    p.time_ms = watch.getTime();
+    return p;
+  }
+  if (tentative) {
+    p.tentative = true;
+    fill(tentative->first, tentative->second, "tentatively on");
     p.time_ms = watch.getTime();
     return p;
   }
@@ -227,6 +259,12 @@ MapLocalizationParams::isValid(std::string* why) const
                 std::to_string(max_tracking_only_frames));
   if (max_realign_frames < 1)
     return fail("max_realign_frames must be >= 1, got " + std::to_string(max_realign_frames));
+  if (tentative_window_frames < 0)
+    return fail("tentative_window_frames must be >= 0, got " +
+                std::to_string(tentative_window_frames));
+  if (!(agree_m > 0.0) || !(agree_deg > 0.0))
+    return fail("agree_m and agree_deg must be > 0, got " + std::to_string(agree_m) + " and " +
+                std::to_string(agree_deg));
   return true;
 }
 
@@ -261,6 +299,18 @@ struct MapLocalization::Impl
   /// The motion per second between the last two frames, when the map confirmed both.
   std::optional<Twist> map_velocity;
   bool previous_confirmed = false; ///< the map confirmed the last frame
+  std::size_t frames = 0;          ///< scans and skipped scans so far
+  int odometry_run = 0;            ///< counts the odometry's (re)starts
+  /// The last placement (tentative or full) with the odometry's pose of its scan, for a
+  /// later tentative placement to agree with.
+  struct Recent
+  {
+    Pose3d T_world_lidar = Pose3d::Identity();
+    Pose3d T_odom_lidar = Pose3d::Identity();
+    int odometry_run = 0;
+    std::size_t frame = 0;
+  };
+  std::optional<Recent> recent_placement;
   /// Alignment targets of session key-frames (their own frame), the newest used last.
   std::map<KeyFrameId, std::shared_ptr<const PointToPlaneTarget>> targets;
   std::deque<KeyFrameId> target_order;
@@ -401,6 +451,7 @@ struct MapLocalization::Impl
     odometry = std::make_unique<Odometry>(odometry_params);
     have_odom_previous = false;
     odometry_stale = false;
+    ++odometry_run;
   }
 
   /// The odometry's motion since the previous frame (identity for the first).
@@ -423,6 +474,29 @@ struct MapLocalization::Impl
     previous_confirmed = true;
     tracking_only = 0;
     T_world_previous = T_world_lidar;
+  }
+
+  /// Whether the placement of an earlier scan (recent_placement), moved by the
+  /// odometry to this scan (odometry pose \a T_odom_lidar), agrees with \a placement;
+  /// \a how says by how much.
+  bool agreesWithRecent(const Placement& placement,
+                        const Pose3d& T_odom_lidar,
+                        std::string& how) const
+  {
+    if (!recent_placement || recent_placement->odometry_run != odometry_run ||
+        frames - recent_placement->frame > static_cast<std::size_t>(params.tentative_window_frames))
+      return false;
+    const Pose3d moved = recent_placement->T_world_lidar *
+                         (recent_placement->T_odom_lidar.inverse() * T_odom_lidar);
+    const Pose3d d = moved.inverse() * placement.T_world_lidar;
+    const double d_m = d.translation().norm();
+    const double d_deg = Eigen::AngleAxisd(d.rotation()).angle() * 180.0 / M_PI;
+    char text[120];
+    std::snprintf(text, sizeof text,
+                  "agrees with the placement %zu frames before within %.2f m, %.2f deg; ",
+                  frames - recent_placement->frame, d_m, d_deg);
+    how = text;
+    return d_m <= params.agree_m && d_deg <= params.agree_deg;
   }
 
   /// No alignment and no placement: carried on by the odometry, or given up.
@@ -503,6 +577,7 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   const pcl::StopWatch watch;
   Impl& m = *impl_;
   m.started = true;
+  ++m.frames;
   LocalizationFrame f;
   f.frame_index = frame_index;
   f.timestamp_s = timestamp_s;
@@ -573,6 +648,16 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
     query.cloud = scan;
     placement = m.localizer.place(query);
   }
+  // A tentative placement is taken when an earlier scan's placement agrees with it.
+  std::string agreement;
+  if (placement.tentative && m.params.tentative_window_frames > 0 &&
+      m.agreesWithRecent(placement, odo->T_world_lidar, agreement)) {
+    placement.success = true;
+    placement.message = agreement + placement.message;
+  }
+  if (placement.success || placement.tentative)
+    m.recent_placement = Impl::Recent{placement.T_world_lidar, odo->T_world_lidar,
+                                      m.odometry_run, m.frames};
   if (placement.success)
     m.takePlacement(f, placement, predicted, dt);
   else if (predicted)
@@ -590,6 +675,7 @@ MapLocalization::addSkippedScan(double timestamp_s,
 {
   Impl& m = *impl_;
   m.started = true;
+  ++m.frames;
   LocalizationFrame f;
   f.frame_index = frame_index;
   f.timestamp_s = timestamp_s;

@@ -261,6 +261,56 @@ TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
   }
 }
 
+/// A placement short of the full inlier threshold is tentative: never taken alone,
+/// taken when the next scan's placement, moved by the odometry, agrees with it. Here no
+/// placement can reach the full threshold (1000 inliers), so every one is tentative.
+TEST(MapLocalization, TentativePlacementsAreTakenWhenTwoScansAgree)
+{
+  const MappedLoop m = mapLoop();
+  SessionLocalizerParams params;
+  params.odometry = m.odometry;
+  params.verification.min_inliers = 1000;
+  ASSERT_EQ(params.tentative_min_inliers, 20);
+  const SessionLocalizer strict(loadSession(m.dir.string()), params);
+
+  const Placement p = strict.place(simulateFrame(*m.sim, 160));
+  EXPECT_FALSE(p.success);
+  ASSERT_TRUE(p.tentative) << p.message;
+  EXPECT_LT((p.T_world_lidar.translation() - m.truth(160).translation()).norm(), 0.5);
+  EXPECT_NE(p.message.find("tentatively on key-frame"), std::string::npos) << p.message;
+
+  for (const int window : {3, 0}) {
+    MapLocalizationParams loc_params;
+    loc_params.tentative_window_frames = window;
+    MapLocalization localization(strict, m.odometry, loc_params);
+    for (std::size_t i = 160; i < 166; ++i) {
+      const LocalizationFrame f =
+          localization.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
+      if (window == 0 || i == 160) {
+        EXPECT_NE(f.status, LocalizationStatus::kLocalized)
+            << "window " << window << ", frame " << i << ": " << f.message;
+        continue;
+      }
+      ASSERT_EQ(f.status, LocalizationStatus::kLocalized) << "frame " << i << ": " << f.message;
+      EXPECT_LT((f.T_world_lidar.translation() - m.truth(i).translation()).norm(), 0.5)
+          << "frame " << i;
+      if (i == 161) {
+        EXPECT_TRUE(f.placed);
+        EXPECT_NE(f.message.find("agrees with the placement 1 frames before"),
+                  std::string::npos)
+            << f.message;
+      }
+    }
+  }
+
+  // A world that was never mapped: not even tentative.
+  const auto elsewhere = pathSimulator(PathType::kStraight, 40, 0.0, 9);
+  for (std::size_t i = 0; i < 40; i += 4) {
+    const Placement q = strict.place(simulateFrame(*elsewhere, i));
+    EXPECT_FALSE(q.success || q.tentative) << "frame " << i << ": " << q.message;
+  }
+}
+
 TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
 {
   SessionLocalizerParams params;
@@ -285,6 +335,15 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
   no_realign.max_realign_frames = 0;
   EXPECT_FALSE(no_realign.isValid(&why));
   EXPECT_NE(why.find("max_realign_frames must be >= 1, got 0"), std::string::npos) << why;
+  MapLocalizationParams no_agreement;
+  no_agreement.agree_m = 0.0;
+  EXPECT_FALSE(no_agreement.isValid(&why));
+  EXPECT_NE(why.find("agree_m and agree_deg must be > 0"), std::string::npos) << why;
+  SessionLocalizerParams tentative_two;
+  tentative_two.tentative_min_inliers = 2;
+  EXPECT_FALSE(tentative_two.isValid(&why));
+  EXPECT_NE(why.find("tentative_min_inliers must be 0 or >= 3, got 2"), std::string::npos)
+      << why;
 }
 
 } // namespace

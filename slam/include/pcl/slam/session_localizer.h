@@ -41,6 +41,11 @@ struct SessionLocalizerParams
   }();
   /// Key-frames verified per scan, best appearance first (>= 1).
   int max_candidates = 6;
+  /// A candidate that passes every check with fewer guided inliers than
+  /// verification.min_inliers, but at least this many, makes a tentative placement
+  /// (Placement::tentative): not a placement by itself, one when the tentative
+  /// placement of another scan agrees with it (MapLocalization). 0: none.
+  int tentative_min_inliers = 20;
   /// \brief Whether all values are usable; on failure \a why (if not null) says which.
   bool isValid(std::string* why = nullptr) const;
 };
@@ -48,7 +53,12 @@ struct SessionLocalizerParams
 /// \brief Where a scan was placed on the map, or why it was not.
 struct Placement
 {
+  /// Placed: a candidate passed every check with the full thresholds.
   bool success = false;
+  /// Not placed, but a candidate passed every check with at least
+  /// tentative_min_inliers guided inliers: the pose fields below are filled in, for a
+  /// caller that accepts it once another scan's placement agrees with it.
+  bool tentative = false;
   /// Pose of the scan's LiDAR frame in the session's world frame (when success).
   Pose3d T_world_lidar = Pose3d::Identity();
   KeyFrameId keyframe = 0; ///< the session key-frame it was verified against
@@ -148,6 +158,15 @@ struct MapLocalizationParams
   /// dense alignment from a stale prediction can lock onto a street that looks the
   /// same (a 200-frame kidnapping was "localized" 137 m off that way).
   int max_realign_frames = 5;
+  /// A tentative placement (SessionLocalizerParams::tentative_min_inliers) is taken
+  /// when the tentative or full placement of a scan at most this many frames before
+  /// agrees with it, moved by the odometry in between: within agree_m and agree_deg.
+  /// Between two runs many true placements fall short of the paper's 40 inliers; two
+  /// independent scans agreeing on one pose are as hard to get wrong as one strong
+  /// match. 0: tentative placements are never taken.
+  int tentative_window_frames = 3;
+  double agree_m = 0.5;
+  double agree_deg = 2.0;
   /// While the map confirms every frame, the odometry rests: the motion between the
   /// last two confirmed frames predicts the next one (and compensates its sweep), as a
   /// map-based localizer tracks. The first frame the map does not confirm starts the
