@@ -153,7 +153,8 @@ SessionLocalizer::place(const KeyFrame& query_in) const
   p.candidates_retrieved = static_cast<int>(ranking.size());
   const GuessTolerance no_guess; // any pose: there is no prior
   std::string reasons;
-  const auto fill = [&](KeyFrameId id, const LoopVerification& v, const char* what) {
+  const auto fill = [&](KeyFrameId id, const LoopVerification& v, int candidate_number,
+                        const char* what) {
     const KeyFrame& candidate = *impl_->session.keyframes.at(id);
     p.keyframe = id;
     p.T_world_lidar = normalizedPose(candidate.T_world_keyframe * v.T_candidate_query);
@@ -164,11 +165,16 @@ SessionLocalizer::place(const KeyFrame& query_in) const
     std::snprintf(text, sizeof text,
                   "%s key-frame %u (candidate %d of %d): %d inliers, dense overlap "
                   "%.2f, rmse %.3f m",
-                  what, static_cast<unsigned>(id), p.candidates_verified,
-                  p.candidates_retrieved, v.num_inliers, v.dense_overlap, v.dense_rmse_m);
+                  what, static_cast<unsigned>(id), candidate_number, p.candidates_retrieved, v.num_inliers, v.dense_overlap, v.dense_rmse_m);
     p.message = text;
   };
-  std::optional<std::pair<KeyFrameId, LoopVerification>> tentative;
+  struct Tentative
+  {
+    KeyFrameId id;
+    LoopVerification verification;
+    int candidate_number;
+  };
+  std::optional<Tentative> tentative;
   for (const auto& [id, score] : ranking) {
     if (p.candidates_verified >= impl_->params.max_candidates)
       break;
@@ -185,7 +191,7 @@ SessionLocalizer::place(const KeyFrame& query_in) const
     if (v.num_inliers < impl_->min_inliers) {
       // Short of the full threshold: a later candidate may still reach it.
       if (!tentative)
-        tentative.emplace(id, v);
+        tentative = Tentative{id, v, p.candidates_verified};
       if (reasons.size() < 400)
         reasons += (reasons.empty() ? "" : "; ") + std::to_string(id) + ": tentative, " +
                    std::to_string(v.num_inliers) + " inliers < " +
@@ -193,13 +199,13 @@ SessionLocalizer::place(const KeyFrame& query_in) const
       continue;
     }
     p.success = true;
-    fill(id, v, "placed on");
+    fill(id, v, p.candidates_verified, "placed on");
     p.time_ms = watch.getTime();
     return p;
   }
   if (tentative) {
     p.tentative = true;
-    fill(tentative->first, tentative->second, "tentatively on");
+    fill(tentative->id, tentative->verification, tentative->candidate_number, "tentatively on");
     p.time_ms = watch.getTime();
     return p;
   }
@@ -252,6 +258,9 @@ MapLocalizationParams::isValid(std::string* why) const
     return fail("alignment: " + sub);
   if (!(max_rmse_m > 0.0))
     return fail("max_rmse_m must be > 0, got " + std::to_string(max_rmse_m));
+  if (!(max_rmse_ratio == 0.0 || max_rmse_ratio >= 1.0) || !(rmse_ratio_floor_m >= 0.0))
+    return fail("max_rmse_ratio must be 0 or >= 1 and rmse_ratio_floor_m >= 0, got " +
+                std::to_string(max_rmse_ratio) + " and " + std::to_string(rmse_ratio_floor_m));
   if (!(jump_m > 0.0))
     return fail("jump_m must be > 0, got " + std::to_string(jump_m));
   if (max_tracking_only_frames < 0)
@@ -311,6 +320,25 @@ struct MapLocalization::Impl
     std::size_t frame = 0;
   };
   std::optional<Recent> recent_placement;
+  std::deque<double> recent_rmse; ///< of the last confirmed alignments, since a placement
+
+  /// Why an alignment with residual \a rmse_m fits suspiciously worse than the last
+  /// ones (empty: it does not; MapLocalizationParams::max_rmse_ratio).
+  std::string suddenlyWorse(double rmse_m) const
+  {
+    if (params.max_rmse_ratio <= 0.0 || recent_rmse.size() < 3)
+      return {};
+    std::vector<double> sorted(recent_rmse.begin(), recent_rmse.end());
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    const double median = sorted[sorted.size() / 2];
+    if (rmse_m <= std::max(params.rmse_ratio_floor_m, params.max_rmse_ratio * median))
+      return {};
+    char text[128];
+    std::snprintf(text, sizeof text,
+                  "rmse %.3f m is %.1f times the last frames' %.3f m: another place?", rmse_m,
+                  rmse_m / median, median);
+    return text;
+  }
   /// Alignment targets of session key-frames (their own frame), the newest used last.
   std::map<KeyFrameId, std::shared_ptr<const PointToPlaneTarget>> targets;
   std::deque<KeyFrameId> target_order;
@@ -534,6 +562,7 @@ struct MapLocalization::Impl
         f.message = text + f.message;
       }
     }
+    recent_rmse.clear(); // residuals from here on are of this placement's place
     confirm(placement.T_world_lidar, dt);
   }
 };
@@ -619,7 +648,17 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
     why = std::to_string(m.tracking_only) +
           " frames since the map last confirmed the pose: only a placement localizes again";
   } else if (predicted && scan && !scan->empty()) {
-    if (const auto a = m.alignToMap(*scan, *predicted, why)) {
+    std::optional<Impl::Alignment> a = m.alignToMap(*scan, *predicted, why);
+    if (a) {
+      if (std::string worse = m.suddenlyWorse(a->rmse_m); !worse.empty()) {
+        why = "key-frame " + std::to_string(a->keyframe) + ": " + worse;
+        a.reset();
+      }
+    }
+    if (a) {
+      m.recent_rmse.push_back(a->rmse_m);
+      if (m.recent_rmse.size() > 10)
+        m.recent_rmse.pop_front();
       f.status = LocalizationStatus::kLocalized;
       f.T_world_lidar = a->T_world_lidar;
       f.keyframe = a->keyframe;

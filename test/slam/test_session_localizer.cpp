@@ -339,6 +339,10 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
   no_agreement.agree_m = 0.0;
   EXPECT_FALSE(no_agreement.isValid(&why));
   EXPECT_NE(why.find("agree_m and agree_deg must be > 0"), std::string::npos) << why;
+  MapLocalizationParams ratio_below_one;
+  ratio_below_one.max_rmse_ratio = 0.5;
+  EXPECT_FALSE(ratio_below_one.isValid(&why));
+  EXPECT_NE(why.find("max_rmse_ratio must be 0 or >= 1"), std::string::npos) << why;
   SessionLocalizerParams tentative_two;
   tentative_two.tentative_min_inliers = 2;
   EXPECT_FALSE(tentative_two.isValid(&why));
