@@ -252,6 +252,8 @@ MapLocalizationParams::isValid(std::string* why) const
   std::string sub;
   if (!(map_radius_m > 0.0))
     return fail("map_radius_m must be > 0, got " + std::to_string(map_radius_m));
+  if (!(reuse_target_m >= 0.0))
+    return fail("reuse_target_m must be >= 0, got " + std::to_string(reuse_target_m));
   if (map_keyframes < 1)
     return fail("map_keyframes must be >= 1, got " + std::to_string(map_keyframes));
   if (!alignment.isValid(&sub))
@@ -404,8 +406,14 @@ struct MapLocalization::Impl
       if (d <= params.map_radius_m)
         near.emplace_back(d, kf.get());
     }
-    std::sort(near.begin(), near.end(),
-              [](const auto& a, const auto& b) { return a.first < b.first; });
+    // Built targets within reuse_target_m first, then the rest, each nearest first.
+    const auto built = [&](const std::pair<double, const KeyFrame*>& n) {
+      return n.first <= params.reuse_target_m && targets.count(n.second->id) > 0;
+    };
+    std::sort(near.begin(), near.end(), [&](const auto& a, const auto& b) {
+      const bool ba = built(a), bb = built(b);
+      return ba != bb ? ba : a.first < b.first;
+    });
     std::vector<const KeyFrame*> out;
     for (std::size_t i = 0; i < near.size() && static_cast<int>(i) < params.map_keyframes; ++i)
       out.push_back(near[i].second);

@@ -339,6 +339,10 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
   no_agreement.agree_m = 0.0;
   EXPECT_FALSE(no_agreement.isValid(&why));
   EXPECT_NE(why.find("agree_m and agree_deg must be > 0"), std::string::npos) << why;
+  MapLocalizationParams negative_reuse;
+  negative_reuse.reuse_target_m = -1.0;
+  EXPECT_FALSE(negative_reuse.isValid(&why));
+  EXPECT_NE(why.find("reuse_target_m must be >= 0"), std::string::npos) << why;
   MapLocalizationParams ratio_below_one;
   ratio_below_one.max_rmse_ratio = 0.5;
   EXPECT_FALSE(ratio_below_one.isValid(&why));

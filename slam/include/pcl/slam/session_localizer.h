@@ -129,6 +129,12 @@ struct MapLocalizationParams
   /// of its predicted position (the nearest few, see map_keyframes) [m].
   double map_radius_m = 30.0;
   int map_keyframes = 3; ///< key-frames aligned to per frame, nearest first (>= 1)
+  /// A key-frame whose alignment target is built already comes first while it is
+  /// within this distance of the prediction [m]: building a target costs about 20 ms
+  /// (simulated HDL-64), a third of a localized frame's time when every new nearest
+  /// key-frame, one every 2 m, was built; a key-frame's cloud covers this much
+  /// further on as well. 0: always the nearest first.
+  double reuse_target_m = 10.0;
   /// The alignment: point-to-plane on a key-frame's cloud, from the prediction. It
   /// confirms the pose when it succeeds: at least min_correspondences source points
   /// paired, at least min_overlap_ratio of them, within the allowed correction ...
