@@ -381,9 +381,10 @@ KeyFrameDatabase::scoreAppearance(const KeyFrame& query,
         const int d = hammingDistance(descriptors[i], feature.descriptor);
         if (d > params_.retrieval_max_hamming)
           continue;
-        double dyaw = feature.angle_deg - query.features.points[i].angle_deg;
-        dyaw -= 360.0 * std::floor(dyaw / 360.0);
-        found.push_back({slot, d, static_cast<int>(dyaw / 360.0 * bins) % bins});
+        found.push_back(
+            {slot, d,
+             slam_detail::rotationBin(
+                 feature.angle_deg - query.features.points[i].angle_deg, bins)});
       }
     }
     // One vote per (query feature, key-frame): its nearest descriptor there.
@@ -400,10 +401,7 @@ KeyFrameDatabase::scoreAppearance(const KeyFrame& query,
       votes[s] = h[0];
       continue;
     }
-    float best = 0.0f;
-    for (int b = 0; b < bins; ++b)
-      best = std::max(best, h[(b + bins - 1) % bins] + h[b] + h[(b + 1) % bins]);
-    votes[s] = best;
+    votes[s] = slam_detail::bestRotationWindow(h, bins).second;
   }
 }
 

@@ -140,29 +140,20 @@ rotationFilteredEstimate(const LoopDetectorParams& params,
   const pcl::Correspondences all = matchHamming(query.features, candidate.features, nearest);
   const double bin_deg = params.rotation_bin_deg > 0.0 ? params.rotation_bin_deg : 10.0;
   const int bins = std::max(3, static_cast<int>(std::lround(360.0 / bin_deg)));
-  const auto binOf = [&](const pcl::Correspondence& c) {
-    double d = candidate.features.points[c.index_match].angle_deg -
-               query.features.points[c.index_query].angle_deg;
-    d -= 360.0 * std::floor(d / 360.0);
-    return static_cast<int>(d / 360.0 * bins) % bins;
-  };
-  std::vector<int> histogram(bins, 0);
-  for (const pcl::Correspondence& c : all)
-    ++histogram[binOf(c)];
-  int best = 0, best_count = -1;
-  for (int b = 0; b < bins; ++b) {
-    const int count =
-        histogram[(b + bins - 1) % bins] + histogram[b] + histogram[(b + 1) % bins];
-    if (count > best_count) {
-      best_count = count;
-      best = b;
-    }
+  std::vector<int> bin_of(all.size()), histogram(bins, 0);
+  for (std::size_t k = 0; k < all.size(); ++k) {
+    bin_of[k] = slam_detail::rotationBin(
+        candidate.features.points[all[k].index_match].angle_deg -
+            query.features.points[all[k].index_query].angle_deg,
+        bins);
+    ++histogram[bin_of[k]];
   }
+  const int best = slam_detail::bestRotationWindow(histogram.data(), bins).first;
   pcl::Correspondences kept;
-  for (const pcl::Correspondence& c : all) {
-    const int off = (binOf(c) - best + bins) % bins;
+  for (std::size_t k = 0; k < all.size(); ++k) {
+    const int off = (bin_of[k] - best + bins) % bins;
     if (off == 0 || off == 1 || off == bins - 1)
-      kept.push_back(c);
+      kept.push_back(all[k]);
   }
   RigidRansacResult ransac =
       static_cast<int>(kept.size()) >= params.min_initial_inliers

@@ -9,6 +9,8 @@
 
 #include <pcl/common/time.h>
 
+#include "stage_util.h"
+
 #include <algorithm>
 #include <cmath>
 #include <deque>
@@ -346,6 +348,15 @@ struct MapLocalization::Impl
   std::deque<KeyFrameId> target_order;
   static constexpr std::size_t kMaxTargets = 32;
 
+  /// The motion of the last two frames the map confirmed, over \a dt seconds (none
+  /// without such a motion or an interval).
+  std::optional<Pose3d> velocityStep(double dt) const
+  {
+    if (!map_velocity || !(dt > 0.0))
+      return std::nullopt;
+    return normalizedPose(expSE3(*map_velocity * dt));
+  }
+
   /// Seconds since the last scan (0 when unknown or not increasing).
   double interval(double timestamp_s) const
   {
@@ -526,7 +537,7 @@ struct MapLocalization::Impl
                          (recent_placement->T_odom_lidar.inverse() * T_odom_lidar);
     const Pose3d d = moved.inverse() * placement.T_world_lidar;
     const double d_m = d.translation().norm();
-    const double d_deg = Eigen::AngleAxisd(d.rotation()).angle() * 180.0 / M_PI;
+    const double d_deg = slam_detail::rotationDeg(d);
     char text[120];
     std::snprintf(text, sizeof text,
                   "agrees with the placement %zu frames before within %.2f m, %.2f deg; ",
@@ -619,10 +630,7 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   f.frame_index = frame_index;
   f.timestamp_s = timestamp_s;
   const double dt = m.interval(timestamp_s);
-  // The motion of the last two frames the map confirmed, over this frame's interval.
-  std::optional<Pose3d> velocity_step;
-  if (m.map_velocity && dt > 0.0)
-    velocity_step = normalizedPose(expSE3(*m.map_velocity * dt));
+  const std::optional<Pose3d> velocity_step = m.velocityStep(dt);
 
   // The frame's motion: from the map's velocity while the map tracks (the odometry
   // rests), else from the odometry (from the map's velocity for its first frame).
@@ -731,8 +739,7 @@ MapLocalization::addSkippedScan(double timestamp_s,
   const double dt = m.interval(timestamp_s);
   Pose3d step = Pose3d::Identity();
   if (m.odometry_stale || !m.have_odom_previous) {
-    if (m.map_velocity && dt > 0.0)
-      step = normalizedPose(expSE3(*m.map_velocity * dt));
+    step = m.velocityStep(dt).value_or(Pose3d::Identity());
   } else {
     step = m.odometryStep(m.odometry->skipFrame(timestamp_s, frame_index, reason));
     f.odometry_ran = true;

@@ -326,32 +326,29 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
         << e.what();
   }
   EXPECT_THROW(SessionLocalizer(Session(), SessionLocalizerParams()), std::invalid_argument);
-  MapLocalizationParams bad;
-  bad.map_keyframes = 0;
-  std::string why;
-  EXPECT_FALSE(bad.isValid(&why));
-  EXPECT_NE(why.find("map_keyframes must be >= 1, got 0"), std::string::npos) << why;
-  MapLocalizationParams no_realign;
-  no_realign.max_realign_frames = 0;
-  EXPECT_FALSE(no_realign.isValid(&why));
-  EXPECT_NE(why.find("max_realign_frames must be >= 1, got 0"), std::string::npos) << why;
-  MapLocalizationParams no_agreement;
-  no_agreement.agree_m = 0.0;
-  EXPECT_FALSE(no_agreement.isValid(&why));
-  EXPECT_NE(why.find("agree_m and agree_deg must be > 0"), std::string::npos) << why;
-  MapLocalizationParams negative_reuse;
-  negative_reuse.reuse_target_m = -1.0;
-  EXPECT_FALSE(negative_reuse.isValid(&why));
-  EXPECT_NE(why.find("reuse_target_m must be >= 0"), std::string::npos) << why;
-  MapLocalizationParams ratio_below_one;
-  ratio_below_one.max_rmse_ratio = 0.5;
-  EXPECT_FALSE(ratio_below_one.isValid(&why));
-  EXPECT_NE(why.find("max_rmse_ratio must be 0 or >= 1"), std::string::npos) << why;
+  // Each invalid value is refused with a message that names it.
+  const auto expectInvalid = [](const auto& params, const std::string& message) {
+    std::string why;
+    EXPECT_FALSE(params.isValid(&why)) << message;
+    EXPECT_NE(why.find(message), std::string::npos) << why;
+  };
+  const auto mapParams = [](const auto& change) {
+    MapLocalizationParams p;
+    change(p);
+    return p;
+  };
+  expectInvalid(mapParams([](auto& p) { p.map_keyframes = 0; }),
+                "map_keyframes must be >= 1, got 0");
+  expectInvalid(mapParams([](auto& p) { p.max_realign_frames = 0; }),
+                "max_realign_frames must be >= 1, got 0");
+  expectInvalid(mapParams([](auto& p) { p.agree_m = 0.0; }), "agree_m and agree_deg must be > 0");
+  expectInvalid(mapParams([](auto& p) { p.reuse_target_m = -1.0; }),
+                "reuse_target_m must be >= 0");
+  expectInvalid(mapParams([](auto& p) { p.max_rmse_ratio = 0.5; }),
+                "max_rmse_ratio must be 0 or >= 1");
   SessionLocalizerParams tentative_two;
   tentative_two.tentative_min_inliers = 2;
-  EXPECT_FALSE(tentative_two.isValid(&why));
-  EXPECT_NE(why.find("tentative_min_inliers must be 0 or >= 3, got 2"), std::string::npos)
-      << why;
+  expectInvalid(tentative_two, "tentative_min_inliers must be 0 or >= 3, got 2");
 }
 
 } // namespace
