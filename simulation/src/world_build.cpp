@@ -11,6 +11,7 @@ void
 SimulatedWorld::Impl::buildPath(const PoseVector& poses, double body_height_m)
 {
   // Dense samples (<= 1 m apart) of the path, each with the ground height below it.
+  body_height = body_height_m;
   auto yawOf = [](const Pose3d& T) {
     const Eigen::Vector3d x = T.linear().col(0);
     return std::atan2(x.y(), x.x());
@@ -102,8 +103,8 @@ SimulatedWorld::Impl::buildScenes()
     roughness = GroundRoughness(hashOf(seed, 201), params.ground_roughness_std_m);
 }
 
-void
-SimulatedWorld::Impl::buildDistanceField()
+Grid2
+SimulatedWorld::Impl::gridAroundPath(double cell, double margin) const
 {
   double min_x = kInf, min_y = kInf, max_x = -kInf, max_y = -kInf;
   for (const auto& p : path) {
@@ -112,19 +113,22 @@ SimulatedWorld::Impl::buildDistanceField()
     max_x = std::max(max_x, p.x);
     max_y = std::max(max_y, p.y);
   }
+  Grid2 g;
+  g.cell = cell;
+  g.x0 = min_x - margin;
+  g.y0 = min_y - margin;
+  g.nx = static_cast<int>(std::ceil((max_x - min_x + 2 * margin) / cell)) + 1;
+  g.ny = static_cast<int>(std::ceil((max_y - min_y + 2 * margin) / cell)) + 1;
+  return g;
+}
+
+void
+SimulatedWorld::Impl::buildDistanceField()
+{
   const double margin = params.max_object_distance_m + 24.0;
-  auto makeGrid = [&](double cell) {
-    Grid2 g;
-    g.cell = cell;
-    g.x0 = min_x - margin;
-    g.y0 = min_y - margin;
-    g.nx = static_cast<int>(std::ceil((max_x - min_x + 2 * margin) / cell)) + 1;
-    g.ny = static_cast<int>(std::ceil((max_y - min_y + 2 * margin) / cell)) + 1;
-    return g;
-  };
-  dist_grid = makeGrid(2.0);
-  ground_grid = makeGrid(4.0);
-  ray_grid = makeGrid(8.0);
+  dist_grid = gridAroundPath(2.0, margin);
+  ground_grid = gridAroundPath(4.0, margin);
+  ray_grid = gridAroundPath(8.0, margin);
 
   const std::size_t n = static_cast<std::size_t>(dist_grid.nx) * dist_grid.ny;
   // Far cells keep a large finite value (not infinity: interpolation weights of 0).
@@ -154,62 +158,149 @@ SimulatedWorld::Impl::buildDistanceField()
 }
 
 void
+SimulatedWorld::Impl::assignGroundLevels()
+{
+  // Greedy, in path order: a sample keeps its predecessor's level unless a sample of
+  // another pass on that level conflicts with it (conflictsWithLevel, over the samples
+  // listed so far), else takes the lowest free one.
+  constexpr int kMaxLevels = 3;
+  level_grid = gridAroundPath(kLevelReach, kLevelReach);
+  const Grid2& g = level_grid;
+  level_cells.assign(static_cast<std::size_t>(g.nx) * g.ny, {});
+  int levels = 1;
+  for (std::size_t k = 0; k < path.size(); ++k) {
+    int level = k > 0 ? path[k - 1].level : 0;
+    for (int l = 0; conflictsWithLevel(k, level) && l < kMaxLevels; ++l)
+      level = l;
+    if (conflictsWithLevel(k, level)) // every level taken here: the least bad, the last
+      level = kMaxLevels - 1;
+    path[k].level = level;
+    levels = std::max(levels, level + 1);
+    level_cells[g.index(g.ix(path[k].x), g.iy(path[k].y))].push_back(
+        static_cast<std::uint32_t>(k));
+  }
+  if (levels == 1) { // the usual case: no lookups needed
+    level_cells.clear();
+    return;
+  }
+  upper_ground.resize(static_cast<std::size_t>(levels - 1));
+}
+
+bool
+SimulatedWorld::Impl::conflictsWithLevel(std::size_t k, int level) const
+{
+  // A conflict: within kLevelReach horizontally, more than kLevelRise apart in ground
+  // height, and more than kOtherPass of path apart (a slope never conflicts with
+  // itself).
+  constexpr double kOtherPass = 100.0;
+  const PathSample& p = path[k];
+  const Grid2& g = level_grid;
+  const int ci = g.ix(p.x), cj = g.iy(p.y);
+  for (int j = std::max(0, cj - 1); j <= std::min(g.ny - 1, cj + 1); ++j)
+    for (int i = std::max(0, ci - 1); i <= std::min(g.nx - 1, ci + 1); ++i)
+      for (const std::uint32_t o : level_cells[g.index(i, j)]) {
+        const PathSample& q = path[o];
+        if (q.level == level && std::abs(p.s - q.s) > kOtherPass &&
+            std::abs(p.ground_z - q.ground_z) > kLevelRise &&
+            (p.x - q.x) * (p.x - q.x) + (p.y - q.y) * (p.y - q.y) <
+                kLevelReach * kLevelReach)
+          return true;
+      }
+  return false;
+}
+
+int
+SimulatedWorld::Impl::levelOfOrigin(const Eigen::Vector3d& o) const
+{
+  if (upper_ground.empty())
+    return 0;
+  const Grid2& g = level_grid;
+  const int ci = g.ix(o.x()), cj = g.iy(o.y());
+  double best = kInf;
+  int level = 0;
+  for (int j = std::max(0, cj - 1); j <= std::min(g.ny - 1, cj + 1); ++j)
+    for (int i = std::max(0, ci - 1); i <= std::min(g.nx - 1, ci + 1); ++i)
+      for (const std::uint32_t k : level_cells[g.index(i, j)]) {
+        const PathSample& p = path[k];
+        const double dz = o.z() - body_height - p.ground_z;
+        const double d2 =
+            (o.x() - p.x) * (o.x() - p.x) + (o.y() - p.y) * (o.y() - p.y) + dz * dz;
+        if (d2 < best) {
+          best = d2;
+          level = p.level;
+        }
+      }
+  return level;
+}
+
+void
 SimulatedWorld::Impl::buildGround()
 {
   // Shepard (inverse-distance) blend of the path's ground heights,
   // w = 1 / (d^2 + s^2)^2 within 60 m: the nearest samples dominate, so the ground
   // passes ~exactly below every pose, and it is smooth in between. Nodes out of reach
-  // take their neighbours' value (breadth-first fill).
+  // take their neighbours' value (breadth-first fill). One field per ground level:
+  // level L's leaves out the samples of other levels that conflict with it.
+  assignGroundLevels();
   const Grid2& g = ground_grid;
   const std::size_t n = static_cast<std::size_t>(g.nx) * g.ny;
-  std::vector<double> wsum(n, 0.0), hsum(n, 0.0);
   const double soft2 = params.ground_smoothing_m * params.ground_smoothing_m;
   const double reach = 60.0;
   const int r = static_cast<int>(std::ceil(reach / g.cell));
-  for (const auto& p : path) {
-    const int ci = static_cast<int>(std::lround((p.x - g.x0) / g.cell));
-    const int cj = static_cast<int>(std::lround((p.y - g.y0) / g.cell));
-    for (int j = std::max(0, cj - r); j <= std::min(g.ny - 1, cj + r); ++j)
-      for (int i = std::max(0, ci - r); i <= std::min(g.nx - 1, ci + r); ++i) {
-        const double dx = g.x0 + i * g.cell - p.x, dy = g.y0 + j * g.cell - p.y;
-        const double d2 = dx * dx + dy * dy;
-        if (d2 > reach * reach)
-          continue;
-        const double w = 1.0 / ((d2 + soft2) * (d2 + soft2));
-        wsum[g.index(i, j)] += w;
-        hsum[g.index(i, j)] += w * p.ground_z;
-      }
-  }
-  ground.assign(n, 0.0);
-  std::vector<char> known(n, 0);
-  std::queue<std::size_t> todo;
-  for (std::size_t i = 0; i < n; ++i)
-    if (wsum[i] > 0.0) {
-      ground[i] = hsum[i] / wsum[i];
-      known[i] = 1;
-      todo.push(i);
-    }
-  while (!todo.empty()) {
-    const std::size_t idx = todo.front();
-    todo.pop();
-    const int i = static_cast<int>(idx % g.nx), j = static_cast<int>(idx / g.nx);
-    const int nb[4][2] = {{i - 1, j}, {i + 1, j}, {i, j - 1}, {i, j + 1}};
-    for (const auto& q : nb) {
-      if (q[0] < 0 || q[1] < 0 || q[0] >= g.nx || q[1] >= g.ny)
+  auto blend = [&](int level) {
+    std::vector<double> wsum(n, 0.0), hsum(n, 0.0);
+    for (std::size_t k = 0; k < path.size(); ++k) {
+      const PathSample& p = path[k];
+      if (p.level != level && conflictsWithLevel(k, level))
         continue;
-      const std::size_t k = g.index(q[0], q[1]);
-      if (!known[k]) {
-        known[k] = 1;
-        ground[k] = ground[idx];
-        todo.push(k);
+      const int ci = static_cast<int>(std::lround((p.x - g.x0) / g.cell));
+      const int cj = static_cast<int>(std::lround((p.y - g.y0) / g.cell));
+      for (int j = std::max(0, cj - r); j <= std::min(g.ny - 1, cj + r); ++j)
+        for (int i = std::max(0, ci - r); i <= std::min(g.nx - 1, ci + r); ++i) {
+          const double dx = g.x0 + i * g.cell - p.x, dy = g.y0 + j * g.cell - p.y;
+          const double d2 = dx * dx + dy * dy;
+          if (d2 > reach * reach)
+            continue;
+          const double w = 1.0 / ((d2 + soft2) * (d2 + soft2));
+          wsum[g.index(i, j)] += w;
+          hsum[g.index(i, j)] += w * p.ground_z;
+        }
+    }
+    std::vector<double> field(n, 0.0);
+    std::vector<char> known(n, 0);
+    std::queue<std::size_t> todo;
+    for (std::size_t i = 0; i < n; ++i)
+      if (wsum[i] > 0.0) {
+        field[i] = hsum[i] / wsum[i];
+        known[i] = 1;
+        todo.push(i);
+      }
+    while (!todo.empty()) {
+      const std::size_t idx = todo.front();
+      todo.pop();
+      const int i = static_cast<int>(idx % g.nx), j = static_cast<int>(idx / g.nx);
+      const int nb[4][2] = {{i - 1, j}, {i + 1, j}, {i, j - 1}, {i, j + 1}};
+      for (const auto& q : nb) {
+        if (q[0] < 0 || q[1] < 0 || q[0] >= g.nx || q[1] >= g.ny)
+          continue;
+        const std::size_t k = g.index(q[0], q[1]);
+        if (!known[k]) {
+          known[k] = 1;
+          field[k] = field[idx];
+          todo.push(k);
+        }
       }
     }
-  }
-  raiseEmbankments();
+    raiseEmbankments(field);
+    return field;
+  };
+  ground = blend(0);
+  for (std::size_t l = 0; l < upper_ground.size(); ++l)
+    upper_ground[l] = blend(static_cast<int>(l) + 1);
 }
 
 void
-SimulatedWorld::Impl::raiseEmbankments()
+SimulatedWorld::Impl::raiseEmbankments(std::vector<double>& field) const
 {
   // Highway stretches: on each side (drawn per stretch: one or both) an earth bank
   // whose toe is 12-15 m from the path, rising 1:2 to a 3-6 m plateau 10-30 m wide and
@@ -249,7 +340,7 @@ SimulatedWorld::Impl::raiseEmbankments()
       const Bank& b = banks[sample_stretch[k]][lateral >= 0 ? 0 : 1];
       const double d = distanceAt(x, y);
       const double up = d - b.toe_m, down = b.toe_m + 4.0 * b.height_m + b.plateau_m - d;
-      ground[g.index(i, j)] += std::clamp(0.5 * std::min(up, down), 0.0, b.height_m);
+      field[g.index(i, j)] += std::clamp(0.5 * std::min(up, down), 0.0, b.height_m);
     }
 }
 

@@ -214,6 +214,9 @@ private:
 struct PathSample
 {
   double x, y, ground_z, heading, s;
+  /// Ground level (SimulatedWorld::Impl::assignGroundLevels): 0 unless a pass of the
+  /// path runs over a place another pass drove at another height.
+  int level = 0;
 };
 
 struct MovingCar
@@ -246,6 +249,15 @@ struct SimulatedWorld::Impl
 
   Grid2 ground_grid; ///< 4 m nodes of the ground height field
   std::vector<double> ground;
+  /// Height fields of the ground levels above 0 (level L at L - 1): where a pass of
+  /// the trajectory runs over a place another pass drove metres higher or lower
+  /// (KITTI ground truth drifts vertically: 02, 08, 09), one field cannot pass below
+  /// both, and a sensor below the ground sees none of it. Each level has its own
+  /// field; a ray uses the level of the path sample nearest its origin.
+  std::vector<std::vector<double>> upper_ground;
+  double body_height = 0.0; ///< of the path's poses above the ground
+  Grid2 level_grid;         ///< 20 m cells listing the path samples (levels only)
+  std::vector<std::vector<std::uint32_t>> level_cells;
 
   std::vector<Primitive> prims;
   Grid2 ray_grid; ///< 4 m cells listing the primitives overlapping them
@@ -259,9 +271,19 @@ struct SimulatedWorld::Impl
   // -- construction steps --
   void buildPath(const PoseVector& poses, double body_height_m);
   void buildScenes();
+  /// A grid of \a cell over the path's bounding box grown by \a margin.
+  Grid2 gridAroundPath(double cell, double margin) const;
   void buildDistanceField();
   void buildGround();
-  void raiseEmbankments();
+  /// PathSample::level: a sample gets the lowest level (its predecessor's first) on
+  /// which no sample of another pass (> 100 m of path away) within kLevelReach lies
+  /// more than kLevelRise higher or lower.
+  void assignGroundLevels();
+  /// Whether path sample \a k conflicts with a listed sample on \a level.
+  bool conflictsWithLevel(std::size_t k, int level) const;
+  static constexpr double kLevelReach = 20.0; ///< [m] horizontally
+  static constexpr double kLevelRise = 1.0;   ///< [m] of ground height
+  void raiseEmbankments(std::vector<double>& field) const;
   /// The static objects, layer by layer (world_objects.cpp).
   void placeObjects();
   void placeBuildings();
@@ -308,15 +330,26 @@ struct SimulatedWorld::Impl
   void clearCrossRoads();
 
   // -- queries --
-  /// The ground without its roughness (height field of the path plus embankments).
-  double
-  smoothGroundAt(double x, double y, double* gx = nullptr, double* gy = nullptr) const;
+  /// The ground without its roughness (height field of the path plus embankments) on
+  /// \a level; -1: the level of the path sample nearest (x, y) (objects, cars).
+  double smoothGroundAt(double x,
+                        double y,
+                        double* gx = nullptr,
+                        double* gy = nullptr,
+                        int level = -1) const;
   /// The ground: smoothGroundAt plus the roughness when params.rough_ground.
-  double groundAt(double x, double y, double* gx = nullptr, double* gy = nullptr) const
+  double groundAt(double x,
+                  double y,
+                  double* gx = nullptr,
+                  double* gy = nullptr,
+                  int level = -1) const
   {
-    const double h = smoothGroundAt(x, y, gx, gy);
+    const double h = smoothGroundAt(x, y, gx, gy, level);
     return params.rough_ground ? h + roughness.at(x, y, gx, gy) : h;
   }
+  /// The ground level of a sensor at \a o: that of the path sample nearest to it in 3D
+  /// (the sample's ground plus the body height), 0 without upper levels.
+  int levelOfOrigin(const Eigen::Vector3d& o) const;
   SceneType sceneOfSample(std::size_t k) const
   {
     return stretches[sample_stretch[k]].type;
@@ -348,6 +381,7 @@ struct SimulatedWorld::Impl
   bool marchGround(const Eigen::Vector3d& o,
                    const Eigen::Vector3d& d,
                    double t_max,
+                   int level,
                    double& t,
                    double& cos_inc) const;
   /// A smooth-ground crossing at \a t with gradient (gx, gy) made a hit: refined on
@@ -357,12 +391,14 @@ struct SimulatedWorld::Impl
                        double t_max,
                        double gx,
                        double gy,
+                       int level,
                        double& t,
                        double& cos_inc) const;
   /// The rough ground's crossing near the smooth ground's at \a t (refined in place);
   /// (gx, gy): in the smooth ground's gradient there, out the rough ground's.
   void refineOnRoughGround(const Eigen::Vector3d& o,
                            const Eigen::Vector3d& d,
+                           int level,
                            double& t,
                            double& gx,
                            double& gy) const;
@@ -371,18 +407,6 @@ struct SimulatedWorld::Impl
   {
     return heading[dist_grid.index(dist_grid.ix(x), dist_grid.iy(y))];
   }
-  /// Ground below the origin (h0, gx0, gy0: smooth ground) is shared by all rays of a
-  /// frame. \a march: rays the Newton steps miss are marched (origins on highways,
-  /// whose embankments rise beside the road).
-  bool groundHit(const Eigen::Vector3d& o,
-                 const Eigen::Vector3d& d,
-                 double t_max,
-                 double h0,
-                 double gx0,
-                 double gy0,
-                 bool march,
-                 double& t,
-                 double& cos_inc) const;
   /// Moving vehicles and their boxes at time t.
   std::vector<MovingVehicle> movingVehicles(double time_s) const;
   std::vector<Primitive> movingCarBoxes(double time_s) const;
@@ -395,9 +419,19 @@ struct SimulatedWorld::Impl
   struct RayOrigin
   {
     double h0 = 0.0, gx0 = 0.0, gy0 = 0.0;
+    int level = 0; ///< of the ground (levelOfOrigin)
     bool march = false;
     const std::vector<Primitive>* near_movers = nullptr;
   };
+  /// The ground below the origin (\a origin: smooth ground, its level) is shared by
+  /// all rays of a frame. origin.march: rays the Newton steps miss are marched
+  /// (origins on highways, whose embankments rise beside the road).
+  bool groundHit(const Eigen::Vector3d& o,
+                 const Eigen::Vector3d& d,
+                 double t_max,
+                 const RayOrigin& origin,
+                 double& t,
+                 double& cos_inc) const;
   /// The nearest hit of a ray so far (range t, incidence, reflectivity).
   struct NearestHit
   {
@@ -430,10 +464,14 @@ struct SimulatedWorld::Impl
 };
 
 inline double
-SimulatedWorld::Impl::smoothGroundAt(double x, double y, double* gx, double* gy) const
+SimulatedWorld::Impl::smoothGroundAt(
+    double x, double y, double* gx, double* gy, int level) const
 {
   // Bilinear interpolation between nodes at (x0 + i * cell, y0 + j * cell).
   const Grid2& g = ground_grid;
+  if (level < 0 && !upper_ground.empty())
+    level = path[nearest[dist_grid.index(dist_grid.ix(x), dist_grid.iy(y))]].level;
+  const std::vector<double>& ground = level > 0 ? upper_ground[level - 1] : this->ground;
   const double fx = std::clamp((x - g.x0) / g.cell, 0.0, g.nx - 1.0001);
   const double fy = std::clamp((y - g.y0) / g.cell, 0.0, g.ny - 1.0001);
   const int i = static_cast<int>(fx), j = static_cast<int>(fy);

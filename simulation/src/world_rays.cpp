@@ -119,10 +119,7 @@ inline bool
 SimulatedWorld::Impl::groundHit(const Eigen::Vector3d& o,
                                 const Eigen::Vector3d& d,
                                 double t_max,
-                                double h0,
-                                double gx0,
-                                double gy0,
-                                bool march,
+                                const RayOrigin& origin,
                                 double& t,
                                 double& cos_inc) const
 {
@@ -130,24 +127,27 @@ SimulatedWorld::Impl::groundHit(const Eigen::Vector3d& o,
   // from the tangent plane of the ground below the origin. Embankments (highways)
   // fall back to marching; rough ground refines the smooth crossing.
   double gx, gy;
-  const double slope0 = d.z() - gx0 * d.x() - gy0 * d.y();
-  if (slope0 >= -1e-9 || o.z() <= h0)
-    return march && marchGround(o, d, t_max, t, cos_inc);
-  t = (o.z() - h0) / -slope0;
+  const bool march = origin.march;
+  const int level = origin.level;
+  const double slope0 = d.z() - origin.gx0 * d.x() - origin.gy0 * d.y();
+  if (slope0 >= -1e-9 || o.z() <= origin.h0)
+    return march && marchGround(o, d, t_max, level, t, cos_inc);
+  t = (o.z() - origin.h0) / -slope0;
   const int iterations = march ? 12 : 6;
   for (int it = 0; it < iterations; ++it) {
     if (t > 2.0 * t_max)
       break;
-    const double h = smoothGroundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
+    const double h =
+        smoothGroundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy, level);
     const double f = o.z() + t * d.z() - h;
     const double df = d.z() - gx * d.x() - gy * d.y();
     if (std::abs(f) < 5e-4)
-      return finishGroundHit(o, d, t_max, gx, gy, t, cos_inc);
+      return finishGroundHit(o, d, t_max, gx, gy, level, t, cos_inc);
     if (df >= -1e-9)
       break;
     t -= f / df;
   }
-  return march && marchGround(o, d, t_max, t, cos_inc);
+  return march && marchGround(o, d, t_max, level, t, cos_inc);
 }
 
 bool
@@ -156,11 +156,12 @@ SimulatedWorld::Impl::finishGroundHit(const Eigen::Vector3d& o,
                                       double t_max,
                                       double gx,
                                       double gy,
+                                      int level,
                                       double& t,
                                       double& cos_inc) const
 {
   if (params.rough_ground)
-    refineOnRoughGround(o, d, t, gx, gy);
+    refineOnRoughGround(o, d, level, t, gx, gy);
   if (t <= 0.0 || t >= t_max)
     return false;
   const Eigen::Vector3d n(-gx, -gy, 1.0);
@@ -172,11 +173,14 @@ bool
 SimulatedWorld::Impl::marchGround(const Eigen::Vector3d& o,
                                   const Eigen::Vector3d& d,
                                   double t_max,
+                                  int level,
                                   double& t,
                                   double& cos_inc) const
 {
   auto f = [&](double tt) {
-    return o.z() + tt * d.z() - smoothGroundAt(o.x() + tt * d.x(), o.y() + tt * d.y());
+    return o.z() + tt * d.z() -
+           smoothGroundAt(
+               o.x() + tt * d.x(), o.y() + tt * d.y(), nullptr, nullptr, level);
   };
   // 8 m steps up to 80 m (embankments rise 3-6 m over 6-12 m and end within ~70 m of
   // the road), bisection down to 5 cm, then the secant: the ground is bilinear
@@ -203,8 +207,8 @@ SimulatedWorld::Impl::marchGround(const Eigen::Vector3d& o,
     }
     t = t_lo + (t_hi - t_lo) * f_lo / (f_lo - f_hi);
     double gx, gy;
-    smoothGroundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy);
-    return finishGroundHit(o, d, t_max, gx, gy, t, cos_inc);
+    smoothGroundAt(o.x() + t * d.x(), o.y() + t * d.y(), &gx, &gy, level);
+    return finishGroundHit(o, d, t_max, gx, gy, level, t, cos_inc);
   }
   return false;
 }
@@ -212,6 +216,7 @@ SimulatedWorld::Impl::marchGround(const Eigen::Vector3d& o,
 void
 SimulatedWorld::Impl::refineOnRoughGround(const Eigen::Vector3d& o,
                                           const Eigen::Vector3d& d,
+                                          int level,
                                           double& t,
                                           double& gx,
                                           double& gy) const
@@ -231,7 +236,7 @@ SimulatedWorld::Impl::refineOnRoughGround(const Eigen::Vector3d& o,
   for (int it = 0; it < 4; ++it) {
     const double x = o.x() + t * d.x(), y = o.y() + t * d.y();
     const double ground = it == 0 ? o.z() + t * d.z() + roughness.at(x, y, &gx, &gy)
-                                  : groundAt(x, y, &gx, &gy);
+                                  : groundAt(x, y, &gx, &gy, level);
     const double f = o.z() + t * d.z() - ground;
     if (std::abs(f) < 2e-3 || hi - lo < 2e-3)
       return;
@@ -368,15 +373,7 @@ SimulatedWorld::Impl::castRay(const Eigen::Vector3d& o,
   NearestHit hit;
   hit.t = max_range_m;
   double t_ground, cos_ground;
-  if (groundHit(o,
-                d,
-                max_range_m,
-                origin.h0,
-                origin.gx0,
-                origin.gy0,
-                origin.march,
-                t_ground,
-                cos_ground)) {
+  if (groundHit(o, d, max_range_m, origin, t_ground, cos_ground)) {
     hit.t = t_ground;
     hit.cos_inc = cos_ground;
     const Eigen::Vector3d p = o + t_ground * d;
@@ -435,7 +432,8 @@ SimulatedWorld::Impl::castRays(const Eigen::Vector3d* origins,
       if (std::hypot(b.cx - o.x(), b.cy - o.y()) < max_range_m + 5.0)
         near_movers.push_back(b);
     RayOrigin origin;
-    origin.h0 = smoothGroundAt(o.x(), o.y(), &origin.gx0, &origin.gy0);
+    origin.level = levelOfOrigin(o);
+    origin.h0 = smoothGroundAt(o.x(), o.y(), &origin.gx0, &origin.gy0, origin.level);
     origin.march = has_highway && sceneAt(o.x(), o.y()) == SceneType::kHighway;
     origin.near_movers = &near_movers;
     for (std::size_t r = r0; r < r1; ++r)

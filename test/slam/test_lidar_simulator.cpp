@@ -19,9 +19,9 @@
 #include <numeric>
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/io/pcd_io.h>
+#include <pcl/io/pose_io.h>
 #include <pcl/kdtree/kdtree_flann.h>
 #include <pcl/simulation/lidar_simulator.h>
-#include <pcl/io/pose_io.h>
 #include <sstream>
 
 namespace {
@@ -2173,3 +2173,52 @@ TEST(LidarSimulator, PorousFramesIndependentOfThreads)
 }
 
 } // namespace
+
+TEST(LidarSimulator, GroundLevelsKeepEveryPassAboveItsOwnGround)
+{
+  // A road driven twice, the second pass 4 m higher (KITTI 02's ground truth drifts
+  // like this over frames 900-1000 and 4145-4237; 08's by 12 m at its start). One
+  // height field cannot pass below both: the low pass's sensor was below the blended
+  // ground and saw none of it. Each pass must see its own ground beneath it.
+  WorldParams p;
+  p.building_probability = p.tree_probability = p.pole_probability = 0.0;
+  p.parked_car_probability = p.wall_probability = p.open_fraction = 0.0;
+  PoseVector path;
+  auto drive = [&path](Eigen::Vector3d from, const Eigen::Vector3d& to) {
+    const Eigen::Vector3d step = (to - from).normalized();
+    const double yaw = std::atan2(step.y(), step.x());
+    for (double s = 0.0; s < (to - from).norm(); s += 1.0) {
+      pcl::rast::Pose3d T = pcl::rast::Pose3d::Identity();
+      T.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+      T.translation() = from + s * step;
+      path.push_back(T);
+    }
+  };
+  // East along y = 0 at 1.73 m, a detour north, back west along y = 0.5 at 5.73 m.
+  drive({0.0, 0.0, 1.73}, {150.0, 0.0, 1.73});
+  drive({150.0, 0.0, 1.73}, {150.0, 120.0, 3.73});
+  drive({150.0, 120.0, 3.73}, {150.0, 0.5, 5.73});
+  drive({150.0, 0.5, 5.73}, {0.0, 0.5, 5.73});
+  const SimulatedWorld world(p, path, 1.73, 7);
+  ASSERT_EQ(world.numPrimitives(), 0u);
+  const auto dirs = fan(-24.8, -8.0, 12, 180);
+  for (const double height : {1.73, 5.73}) {
+    SCOPED_TRACE("pass at " + std::to_string(height) + " m");
+    for (const double x : {30.0, 75.0, 120.0}) {
+      const Eigen::Vector3d o(x, height > 2.0 ? 0.5 : 0.0, height);
+      std::vector<pcl::rast::RayHit> hits;
+      world.castRays(o, dirs, 120.0, 0.0, hits);
+      std::size_t ground = 0, near_own = 0;
+      for (std::size_t r = 0; r < hits.size(); ++r) {
+        if (hits[r].range_m <= 0.0 || !hits[r].is_ground)
+          continue;
+        ++ground;
+        const Eigen::Vector3d q = o + hits[r].range_m * dirs[r];
+        near_own += std::abs(q.z() - (height - 1.73)) < 0.1 && hits[r].range_m < 15.0;
+      }
+      // Rays 8-25 deg down from 1.73 m meet the ground within 4-13 m, all of them.
+      EXPECT_EQ(ground, hits.size());
+      EXPECT_EQ(near_own, hits.size());
+    }
+  }
+}
