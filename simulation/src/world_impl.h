@@ -282,7 +282,7 @@ struct SimulatedWorld::Impl
   /// Whether path sample \a k conflicts with a listed sample on \a level.
   bool conflictsWithLevel(std::size_t k, int level) const;
   static constexpr double kLevelReach = 20.0; ///< [m] horizontally
-  static constexpr double kLevelRise = 1.0;   ///< [m] of ground height
+  static constexpr double kLevelRise = 2.0;   ///< [m] of ground height
   void raiseEmbankments(std::vector<double>& field) const;
   /// The static objects, layer by layer (world_objects.cpp).
   void placeObjects();
