@@ -55,6 +55,7 @@ run(int argc, char** argv)
   DeskewFlags deskew;
   int first = 0, last = -1, stride = 1;
   bool no_refine = false, no_loose_rematch = false, level = params.ground.level_cloud;
+  bool no_vehicle_prior = false;
   int max_features = params.orb.max_features;
   double min_range = params.min_range_m, max_range = params.max_range_m;
   double ratio = params.registration.matching.ratio;
@@ -105,6 +106,10 @@ run(int argc, char** argv)
                  "tunnels, corridors: a direction needs this many points on surfaces "
                  "facing along it, else the prior keeps it (0: off; doc/odometry.md)",
                  &params.dense.degeneracy_min_support);
+  args.addSwitch("no-vehicle-prior",
+                 "the prior gates stay fixed and the dense step has no pull to the prior "
+                 "(the odometry before session 18; doc/odometry.md)",
+                 &no_vehicle_prior);
   if (!args.parse(argc, argv))
     return kExitOk;
   installStopSignals(); // a stop before the first frame ends the run there
@@ -138,6 +143,8 @@ run(int argc, char** argv)
     p.registration.refine = !no_refine;
     if (no_loose_rematch)
       p.loose_rematch = false;
+    if (no_vehicle_prior)
+      rast::disableVehiclePrior(p);
     p.orb.max_features = max_features;
     p.registration.matching.ratio = ratio;
     p.min_range_m = min_range;

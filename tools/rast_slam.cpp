@@ -344,6 +344,7 @@ run(int argc, char** argv)
   bool no_revisit_culling = !defaults.loop_closing.cull_revisits;
   int young_map_scans = defaults.odometry.dense.young_map_scans;
   double degeneracy_support = defaults.odometry.dense.degeneracy_min_support;
+  bool no_vehicle_prior = false;
   bool no_ba = false;
   bool ba = false;
   bool global_ba = defaults.loop_closing.global_bundle_adjustment;
@@ -401,6 +402,10 @@ run(int argc, char** argv)
                    "surfaces facing along it, else the prior keeps it (0: off; "
                    "doc/odometry.md)",
                    &degeneracy_support);
+  parser.addSwitch("no-vehicle-prior",
+                   "tracking: the prior gates stay fixed and the dense step has no pull to "
+                   "the prior (the odometry before session 18; doc/odometry.md)",
+                   &no_vehicle_prior);
   parser.addDouble("map-leaf", "voxel size of map.pcd [m]", &map_leaf_m);
   parser.addSwitch("software-render", "render.png with OpenCV instead of VTK (faster)",
                    &software_render);
@@ -505,6 +510,8 @@ run(int argc, char** argv)
     params.odometry.dense.young_map_scans = young_map_scans;
   if (parser.given("degeneracy-support"))
     params.odometry.dense.degeneracy_min_support = degeneracy_support;
+  if (no_vehicle_prior)
+    rast::disableVehiclePrior(params.odometry);
   if (!params.isValid(&why))
     throw std::logic_error("sensor preset made invalid parameters: " + why);
   // The session's map indexed for placing the drive's key-frames on it (after the run).

@@ -30,13 +30,17 @@ PointToPlaneSystem::solveDegeneracyAware(double min_ratio,
     throw std::logic_error(
         "PointToPlaneSystem::solveDegeneracyAware: a support test needs keepRows(true)");
   Step step;
-  const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(H_);
+  // With a step prior: the data's normal equations plus weight * I, pulled to its
+  // target.
+  const Matrix6d H = H_ + prior_weight_ * Matrix6d::Identity();
+  const Vector6d g = g_ - prior_weight_ * prior_target_;
+  const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(H);
   const double threshold = min_ratio * sum_w_;
   bool constrained[6];
   for (int k = 0; k < 6; ++k) {
-    const double lambda = eig.eigenvalues()(k);
+    const double lambda = eig.eigenvalues()(k); // the data's plus prior_weight_
     const Vector6d v = eig.eigenvectors().col(k);
-    constrained[k] = lambda > threshold;
+    constrained[k] = lambda - prior_weight_ > threshold;
     // Translation-dominant directions only: a rotation's rows gain |lever x n| / L
     // from every far point, so its support does not tell noise from structure.
     if (constrained[k] && support_test && v.tail<3>().squaredNorm() >= 0.5) {
@@ -52,7 +56,7 @@ PointToPlaneSystem::solveDegeneracyAware(double min_ratio,
       ++step.degenerate_directions;
       continue;
     }
-    step.dx -= v * (v.dot(g_) / lambda);
+    step.dx -= v * (v.dot(g) / lambda);
   }
   if (step.degenerate_directions > 0 && to_anchor)
     for (int k = 0; k < 6; ++k)
@@ -60,7 +64,8 @@ PointToPlaneSystem::solveDegeneracyAware(double min_ratio,
         const Vector6d v = eig.eigenvectors().col(k);
         step.dx += v * v.dot(*to_anchor);
       }
-  step.weakest_ratio = sum_w_ > 0.0 ? eig.eigenvalues()(0) / sum_w_ : 0.0;
+  step.weakest_ratio =
+      sum_w_ > 0.0 ? (eig.eigenvalues()(0) - prior_weight_) / sum_w_ : 0.0;
   step.information = sum_w_ > 0.0 ? Matrix6d(H_ / sum_w_) : Matrix6d::Zero();
   return step;
 }

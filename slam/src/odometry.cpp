@@ -172,6 +172,16 @@ OdometryParams::isValid(std::string* why) const
     reason = "strong_feature_inliers must be >= min_feature_inliers";
   else if (!finitePositive(prior_gate_m) || !finitePositive(prior_gate_deg))
     reason = "prior_gate_m and prior_gate_deg must be > 0";
+  else if (!(dense_prior_ratio >= 0.0 && dense_prior_ratio < 1.0))
+    reason =
+        "dense_prior_ratio must be in [0, 1), got " + std::to_string(dense_prior_ratio);
+  else if (!(prior_gate_accel_mps2 >= 0.0 && std::isfinite(prior_gate_accel_mps2)) ||
+           !(prior_gate_angular_accel_dps2 >= 0.0 &&
+             std::isfinite(prior_gate_angular_accel_dps2)))
+    reason = "prior_gate_accel_mps2 and prior_gate_angular_accel_dps2 must be >= 0 and "
+             "finite, got " +
+             std::to_string(prior_gate_accel_mps2) + ", " +
+             std::to_string(prior_gate_angular_accel_dps2);
   else if (!(indistinct_residual_m >= 0.0 && std::isfinite(indistinct_residual_m)))
     reason = "indistinct_residual_m must be >= 0 and finite, got " +
              std::to_string(indistinct_residual_m);
@@ -273,6 +283,9 @@ Odometry::Impl::commitPose(const OdometryFrameResult& result)
                        result.status == TrackingStatus::kFirstFrame;
   frames_without_tracking = tracked ? 0 : frames_without_tracking + 1;
   velocity_tracked = tracked && last_tracked;
+  velocity_age_frames = velocity_tracked          ? 0
+                        : velocity_age_frames < 0 ? -1
+                                                  : velocity_age_frames + 1;
   last_tracked = tracked;
   if (result.keyframe) {
     frames_since_keyframe = 0;
@@ -501,8 +514,7 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
     result.T_keyframe_lidar =
         composePoses(impl_->T_world_keyframe.inverse(), result.T_world_lidar);
   }
-  result.timings.total_ms =
-      watch.getTime();
+  result.timings.total_ms = watch.getTime();
   impl_->commitPose(result);
   return result;
 }

@@ -241,13 +241,32 @@ Odometry::Impl::searchHypotheses(const Frame& frame,
   std::optional<DenseResult> from_prior;
   auto fromPrior = [&]() -> const DenseResult& {
     if (!from_prior)
-      from_prior = registerToMap(frame.source,
-                                 map,
-                                 frame.T_world_prior,
-                                 params.dense,
-                                 {0.0, &frame.T_world_prior});
+      from_prior = registerToMap(
+          frame.source, map, frame.T_world_prior, params.dense, priorAnchored(frame));
     return *from_prior;
   };
+  // With a tracked velocity at a rate where a vehicle cannot deviate far from it, a
+  // result beyond that (a tunnel's walls moving with the sensor: "no motion" at 26 m/s)
+  // is not a motion but a wrong optimum: the prior, corrected where the scan
+  // constrains it, stands.
+  // (Only when the prior's own fit pairs most of the scan: a scan that pairs with
+  // nothing, a corrupt one, falls back to constant velocity as before.)
+  const bool implausible =
+      dense.success && priorGate(frame).dynamics && !nearPrior(frame, dense.T_world_lidar) &&
+      fromPrior().success &&
+      fromPrior().num_correspondences >=
+          kMinFallbackPairedRatio * std::max(1, fromPrior().num_source_points);
+  if (implausible) {
+    result.status = TrackingStatus::kDenseFallback;
+    result.T_world_lidar = fromPrior().T_world_lidar;
+    result.refined = true;
+    keepDenseStats(fromPrior(), result);
+    result.message = why + ": the best of " + std::to_string(starts.size()) +
+                     " motion hypotheses is beyond what the vehicle can do in a frame "
+                     "interval; dense ICP from the prior stands (" +
+                     fromPrior().message + ")";
+    return;
+  }
   if (!(dense.success && dense.degenerate_directions == 0 && well_paired)) {
     result.status = TrackingStatus::kConstantVelocity;
     if (fromPrior().success)

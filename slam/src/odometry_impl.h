@@ -29,7 +29,6 @@ using odometry_detail::VoxelPlaneMap;
 
 namespace odometry_detail {
 
-
 inline double
 angleDeg(const Pose3d& T)
 {
@@ -186,6 +185,10 @@ struct Odometry::Impl
   // constant-velocity prior is a measured motion; false at the cold start.
   bool last_tracked = false;
   bool velocity_tracked = false;
+  /// Frames since velocity_tracked was last true (0: it is now); -1: never yet. A
+  /// velocity carried over a frame or two (a constant-velocity frame in a tunnel)
+  /// still bounds the motion, with a gate that widens with its age (priorGate).
+  int velocity_age_frames = -1;
 
   Pose3d predict(double timestamp_s) const;
   /// Seconds since the last frame (timestamps scaled by deskew.seconds_per_timestamp).
@@ -246,6 +249,25 @@ struct Odometry::Impl
                   OdometryFrameResult& result) const;
   /// Within prior_gate_m and prior_gate_deg of the frame's constant-velocity prior.
   bool nearPrior(const Frame& frame, const Pose3d& T_world_lidar) const;
+  /// The gates of nearPrior for \a frame: OdometryParams::prior_gate_m / _deg, shrunk
+  /// to what a vehicle can deviate from a tracked velocity within the frame interval.
+  struct PriorGate
+  {
+    double metres, degrees;
+    bool dynamics; ///< shrunk: beyond it the motion is implausible, not just large
+  };
+  PriorGate priorGate(const Frame& frame) const;
+  /// Dense options anchored to the frame's prior (degenerate directions take its
+  /// value), pulled toward it by dense_prior_ratio where priorGate(frame).dynamics.
+  DenseOptions priorAnchored(const Frame& frame) const
+  {
+    const PriorGate gate = priorGate(frame);
+    return {0.0,
+            &frame.T_world_prior,
+            gate.dynamics ? params.dense_prior_ratio : 0.0,
+            gate.metres,
+            gate.degrees};
+  }
   /// Weak features: a second dense fit from their planar part or the prior, and the
   /// prior's fit where the scan cannot tell it from theirs.
   void checkWeakFeatures(const Frame& frame,

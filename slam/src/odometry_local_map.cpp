@@ -328,7 +328,7 @@ registerToMap(const Points3f& source,
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
     const double scale_m =
         std::max(params.min_kernel_scale_m, max_scale_m * std::pow(0.5, iteration));
-    const Linearisation l =
+    Linearisation l =
         linearise(source, map, R, t, scale_m, params.max_correspondence_distance_m,
                   params.degeneracy_min_support > 0.0);
     result.iterations = iteration + 1;
@@ -346,8 +346,15 @@ registerToMap(const Points3f& source,
     T_now.linear() = R;
     T_now.translation() = t;
     Vector6d to_anchor = Vector6d::Zero();
-    if (options.T_world_anchor)
+    if (options.T_world_anchor) {
       to_anchor = l.system.tangent(T_now, *options.T_world_anchor);
+      const bool within =
+          to_anchor.tail<3>().norm() <= options.prior_within_m &&
+          to_anchor.head<3>().norm() / kRotationLengthM * 180.0 / M_PI <=
+              options.prior_within_deg;
+      if (options.prior_ratio > 0.0 && within)
+        l.system.setStepPrior(to_anchor, options.prior_ratio * l.system.sumWeights());
+    }
     const PointToPlaneSystem::Step step = l.system.solveDegeneracyAware(
         params.degeneracy_min_ratio,
         options.T_world_anchor ? &to_anchor : nullptr,

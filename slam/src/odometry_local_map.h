@@ -89,9 +89,9 @@ private:
 
   DenseTrackingParams params_;
   float inv_voxel_size_;
-  std::vector<Voxel> voxels_;    ///< insertion order; dropped ones empty until compacted
-  VoxelHashMap index_;           ///< voxel key -> position in voxels_
-  std::size_t num_dropped_ = 0;  ///< voxels dropped by the radius crop, not compacted yet
+  std::vector<Voxel> voxels_;   ///< insertion order; dropped ones empty until compacted
+  VoxelHashMap index_;          ///< voxel key -> position in voxels_
+  std::size_t num_dropped_ = 0; ///< voxels dropped by the radius crop, not compacted yet
 };
 
 /// \brief Outcome of registerToMap.
@@ -126,6 +126,14 @@ struct DenseOptions
   /// Along the degenerate directions the result takes this pose's value (e.g. the
   /// constant-velocity prior) instead of keeping the guess's. Null: the guess's.
   const Eigen::Isometry3d* T_world_anchor = nullptr;
+  /// > 0 (with an anchor): every step is also pulled toward the anchor with this
+  /// fraction of the pairs' total weight (PointToPlaneSystem::setStepPrior), so that a
+  /// direction the scan constrains only weakly (a tunnel's axis, 0.3-1 % of the
+  /// weight) follows the anchor rather than noise and moving cars.
+  double prior_ratio = 0.0;
+  /// ... but only while the iterate is within these of the anchor [m], [deg]: a prior
+  /// far off (a turn the features caught) must not bias the fit.
+  double prior_within_m = 0.0, prior_within_deg = 0.0;
 };
 
 /// \brief The displacement from \a from to \a to in registerToMap's tangent: rotation

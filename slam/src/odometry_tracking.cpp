@@ -290,9 +290,10 @@ Odometry::Impl::trackDense(const Frame& frame,
   // x, y and yaw) strong features set the pose; weak ones (a few posts of a guard rail,
   // a passing car) do not, the constant-velocity prior does.
   bool strong = inliers >= params.strong_feature_inliers;
-  const Pose3d& T_world_anchor = strong ? track.T_world_features : frame.T_world_prior;
-  DenseResult dense = registerToMap(
-      frame.source, map, track.T_world_features, params.dense, {0.0, &T_world_anchor});
+  const DenseOptions anchored =
+      strong ? DenseOptions{0.0, &track.T_world_features} : priorAnchored(frame);
+  DenseResult dense =
+      registerToMap(frame.source, map, track.T_world_features, params.dense, anchored);
   if (strong && velocity_tracked && dense.success && dense.degenerate_directions > 0 &&
       !nearPrior(frame, track.T_world_features)) {
     // Strong features far from a tracked prior, and the scan cannot confirm them along
@@ -301,13 +302,11 @@ Odometry::Impl::trackDense(const Frame& frame,
     // with dozens of inliers). The prior keeps that direction. (Without a tracked
     // velocity the prior is no motion at all, and the features stand.)
     strong = false;
-    dense = registerToMap(frame.source,
-                          map,
-                          track.T_world_features,
-                          params.dense,
-                          {0.0, &frame.T_world_prior});
+    dense = registerToMap(
+        frame.source, map, track.T_world_features, params.dense, priorAnchored(frame));
     result.degraded = true;
-    result.message += "; far from the prior along a direction the scan does not constrain";
+    result.message +=
+        "; far from the prior along a direction the scan does not constrain";
   }
   if (!strong)
     checkWeakFeatures(frame, track, dense, result);
@@ -339,12 +338,36 @@ Odometry::Impl::trackDense(const Frame& frame,
   }
 }
 
+Odometry::Impl::PriorGate
+Odometry::Impl::priorGate(const Frame& frame) const
+{
+  // Shrunk to what a vehicle can deviate from its velocity only when there is one: a
+  // prior without a tracked velocity is a guess (no motion at the start). A velocity
+  // measured k frames ago (carried by constant-velocity frames since) may have changed
+  // over k more intervals: the gate is a * dt * (dt + k dt), up to the fixed one.
+  PriorGate gate{params.prior_gate_m, params.prior_gate_deg, false};
+  if (velocity_age_frames < 0)
+    return gate;
+  const double dt2 = frame.dt * frame.dt * (1.0 + velocity_age_frames);
+  if (params.prior_gate_accel_mps2 > 0.0 &&
+      params.prior_gate_accel_mps2 * dt2 < gate.metres) {
+    gate.metres = params.prior_gate_accel_mps2 * dt2;
+    gate.dynamics = true;
+  }
+  if (params.prior_gate_angular_accel_dps2 > 0.0 &&
+      params.prior_gate_angular_accel_dps2 * dt2 < gate.degrees) {
+    gate.degrees = params.prior_gate_angular_accel_dps2 * dt2;
+    gate.dynamics = true;
+  }
+  return gate;
+}
+
 bool
 Odometry::Impl::nearPrior(const Frame& frame, const Pose3d& T_world_lidar) const
 {
   const Pose3d diff = frame.T_world_prior.inverse() * T_world_lidar;
-  return diff.translation().norm() <= params.prior_gate_m &&
-         angleDeg(diff) <= params.prior_gate_deg;
+  const PriorGate gate = priorGate(frame);
+  return diff.translation().norm() <= gate.metres && angleDeg(diff) <= gate.degrees;
 }
 
 void
@@ -359,7 +382,7 @@ Odometry::Impl::checkWeakFeatures(const Frame& frame,
   // features' planar motion with the prior's height, roll and pitch (near the prior, a
   // level mount) or from the prior itself; the better paired one wins.
   const Pose3d& T_world_prior = frame.T_world_prior;
-  const DenseOptions anchored{0.0, &T_world_prior};
+  const DenseOptions anchored = priorAnchored(frame);
   const bool near_prior = nearPrior(frame, track.T_world_features);
   const bool second_from_features = near_prior && !params.ground.level_cloud;
   const Pose3d T_second =
@@ -378,7 +401,13 @@ Odometry::Impl::checkWeakFeatures(const Frame& frame,
       (!dense.success || second.num_correspondences > dense.num_correspondences ||
        prior_nearly_as_good)) {
     dense = second;
-    if (!near_prior) {
+    const Pose3d off = frame.T_world_prior.inverse() * track.T_world_features;
+    if (!near_prior && off.translation().norm() <= params.prior_gate_m &&
+        angleDeg(off) <= params.prior_gate_deg) {
+      // Beyond the vehicle's dynamics but within the fixed gates: the decimetres weak
+      // features are off by (their pixels), resolved by the prior's fit; not a failure.
+      result.message += "; beyond the vehicle's motion from the prior: dense from the prior";
+    } else if (!near_prior) {
       result.status = TrackingStatus::kDenseFallback;
       result.degraded = true;
       result.message = "weak features disagree with the prior: dense from the prior";
@@ -449,8 +478,7 @@ Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
   const bool weak = result.num_inliers < params.keyframe_min_inliers && useful;
   const bool reanchor = frames_without_tracking + 1 >= kReanchorAfterFrames && useful;
   if ((tracked && (paper_rule || far || weak)) || reanchor) {
-    result.keyframe =
-        makeKeyFrame(result, *frame.features, keptCloud(frame, result));
+    result.keyframe = makeKeyFrame(result, *frame.features, keptCloud(frame, result));
     result.reference_keyframe = result.keyframe->id;
     result.T_keyframe_lidar = Pose3d::Identity();
     if (!tracked) {

@@ -76,6 +76,8 @@ applySensorPreset(SensorPreset preset, OdometryParams& params)
     params.dense.map_voxel_size_m = 0.5;
     params.keyframe_voxel_size_m = 0.25;
     params.keyframe_max_distance_m = 5.0;
+    // A turning head accelerates far more than a vehicle: the fixed prior gates.
+    disableVehiclePrior(params);
     break;
   case SensorPreset::kVlp16:
     // 16 beams: sparse raster, fewer corners; accept smaller inlier sets. No loose
@@ -95,6 +97,14 @@ applySensorPreset(SensorPreset preset, OdometryParams& params)
   case SensorPreset::kOs1_64:
     break;
   }
+}
+
+void
+disableVehiclePrior(OdometryParams& params)
+{
+  params.prior_gate_accel_mps2 = 0.0;
+  params.prior_gate_angular_accel_dps2 = 0.0;
+  params.dense_prior_ratio = 0.0;
 }
 
 SensorGuess

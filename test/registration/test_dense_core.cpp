@@ -174,7 +174,8 @@ corridorSystem(int fixtures, bool keep_rows)
   PointToPlaneSystem system(10.0);
   system.keepRows(keep_rows);
   std::mt19937 rng(5);
-  std::uniform_real_distribution<double> along(-30.0, 30.0), up(-1.5, 3.0), lean(-0.17, 0.17);
+  std::uniform_real_distribution<double> along(-30.0, 30.0), up(-1.5, 3.0),
+      lean(-0.17, 0.17);
   const Eigen::Vector3d dt(0.2, 0.0, 0.0);
   auto add = [&](const Eigen::Vector3d& q, const Eigen::Vector3d& n) {
     system.addPointToPlane(q, n, n.dot(dt), 1.0);
@@ -201,7 +202,8 @@ TEST(PointToPlaneSystem, SupportTestFlagsADirectionOnlyLeaningNormalsConstrain)
   EXPECT_EQ(plain.degenerate_directions, 0);
   EXPECT_LT(plain.least_support, 0.0); // no support test
   // ... but no point faces along it: the support test keeps the start there.
-  const PointToPlaneSystem::Step tested = walls.solveDegeneracyAware(0.003, nullptr, 10.0, 0.3);
+  const PointToPlaneSystem::Step tested =
+      walls.solveDegeneracyAware(0.003, nullptr, 10.0, 0.3);
   EXPECT_EQ(tested.degenerate_directions, 1);
   EXPECT_GE(tested.least_support, 0.0);
   EXPECT_LT(tested.least_support, 10.0);
@@ -217,6 +219,32 @@ TEST(PointToPlaneSystem, SupportTestFlagsADirectionOnlyLeaningNormalsConstrain)
   // A support test needs the rows.
   EXPECT_THROW(corridorSystem(0, false).solveDegeneracyAware(0.003, nullptr, 10.0),
                std::logic_error);
+}
+
+TEST(PointToPlaneSystem, AStepPriorHoldsTheWeakDirectionAndBarelyTheOthers)
+{
+  // The leaning walls' corridor: along it 0.2 m of motion seen only by tilted normals.
+  PointToPlaneSystem walls = corridorSystem(0, false);
+  const PointToPlaneSystem::Step free = walls.solveDegeneracyAware(0.003);
+  ASSERT_EQ(free.degenerate_directions, 0);
+  EXPECT_NEAR(free.dx(3), -0.2, 1e-6); // the data alone follow the leaning normals
+  // A prior at the start (target 0) with 1 % of the weight: the weak direction stays
+  // near it, the constrained ones (z from the ground, y from the walls) hardly feel it.
+  walls.setStepPrior(Eigen::Matrix<double, 6, 1>::Zero(), 0.01 * walls.sumWeights());
+  const PointToPlaneSystem::Step held = walls.solveDegeneracyAware(0.003);
+  EXPECT_EQ(held.degenerate_directions, 0);
+  EXPECT_GT(held.dx(3), -0.1);
+  EXPECT_LT(held.dx(3), 0.0);
+  EXPECT_NEAR(held.dx(4), free.dx(4), 0.01);
+  EXPECT_NEAR(held.dx(5), free.dx(5), 0.01);
+  // The data's information and weakest direction are reported, not the prior's.
+  EXPECT_NEAR(held.weakest_ratio, free.weakest_ratio, 1e-9);
+  EXPECT_LT((held.information - free.information).norm(), 1e-12);
+  // A prior elsewhere pulls the weak direction toward it.
+  Eigen::Matrix<double, 6, 1> target = Eigen::Matrix<double, 6, 1>::Zero();
+  target(3) = 0.5;
+  walls.setStepPrior(target, 0.01 * walls.sumWeights());
+  EXPECT_GT(walls.solveDegeneracyAware(0.003).dx(3), held.dx(3) + 0.1);
 }
 
 TEST(PointToPlaneSystem, TangentScalesRotationByTheLength)

@@ -1,7 +1,8 @@
-/// The odometry in traffic (simulated): an HDL-64 drives, brakes to a stop at a light,
-/// stands while cars stop beside it, pull away and cross ahead, then drives on. The
-/// standing ego must not be moved by the traffic, and the stop-and-go must not break
-/// the constant-velocity prior.
+/// The odometry in traffic and degenerate scenes (simulated): an HDL-64 drives, brakes
+/// to a stop at a light, stands while cars stop beside it, pull away and cross ahead,
+/// then drives on. The standing ego must not be moved by the traffic, and the
+/// stop-and-go must not break the constant-velocity prior. And a drive at 20 m/s into
+/// a tunnel, whose smooth walls hardly tell the motion along it, must keep its speed.
 
 #include <algorithm>
 #include <gtest/gtest.h>
@@ -16,6 +17,21 @@ namespace {
 
 using namespace pcl::rast;
 
+/// Raw sweeps of a flawed HDL-64 in realistic traffic on rough ground.
+LidarSimulatorParams
+streetParams(std::uint64_t seed)
+{
+  LidarSimulatorParams params;
+  params.seed = seed;
+  params.num_threads = 2;
+  params.raw_sweep = true;
+  params.imperfections = true;
+  params.world.moving_cars = true;
+  params.world.traffic.mode = TrafficMode::kRealistic;
+  params.world.rough_ground = true;
+  return params;
+}
+
 TEST(OdometryTraffic, StandingEgoIsNotMovedByTrafficAndStopAndGoTracks)
 {
   PathParams path;
@@ -25,14 +41,7 @@ TEST(OdometryTraffic, StandingEgoIsNotMovedByTrafficAndStopAndGoTracks)
   path.num_stops = 1;
   path.stop_duration_s = 6.0;
   path.acceleration_mps2 = 2.5;
-  LidarSimulatorParams params;
-  params.seed = 23;
-  params.num_threads = 2;
-  params.raw_sweep = true;
-  params.imperfections = true;
-  params.world.moving_cars = true;
-  params.world.traffic.mode = TrafficMode::kRealistic;
-  params.world.rough_ground = true;
+  const LidarSimulatorParams params = streetParams(23);
   const PoseVector body = generatePath(path);
   LidarSimulator sim(params, body);
 
@@ -66,6 +75,65 @@ TEST(OdometryTraffic, StandingEgoIsNotMovedByTrafficAndStopAndGoTracks)
   const EvaluationResult eval = evaluateTrajectory(estimate, truth);
   std::cout << "ATE " << eval.ate_rmse_m << " m over " << eval.gt_length_m << " m\n";
   EXPECT_LT(eval.ate_rmse_m, 0.1);
+}
+
+TEST(OdometryTraffic, ATunnelAtSpeedKeepsTheVehiclesVelocity)
+{
+  // 26 m/s (KITTI 01's highway speed) down a straight road: a suburb, then a long
+  // tunnel, then a highway; raw sweeps, sensor flaws, realistic traffic.
+  PathParams path;
+  path.type = PathType::kStraight;
+  path.num_frames = 170;
+  path.speed_mps = 26.0;
+  LidarSimulatorParams params = streetParams(4);
+  params.world.mixed_scenes = true;
+  params.world.scene_min_length_m = 100.0;
+  params.world.scene_max_length_m = 280.0;
+  const PoseVector body = generatePath(path);
+  LidarSimulator sim(params, body);
+  std::vector<pcl::PointCloud<pcl::PointXYZI>::Ptr> clouds;
+  std::vector<std::vector<float>> times(sim.numFrames());
+  std::size_t tunnel_frames = 0;
+  for (std::size_t i = 0; i < sim.numFrames(); ++i) {
+    clouds.push_back(std::make_shared<pcl::PointCloud<pcl::PointXYZI>>());
+    sim.simulateFrame(i, *clouds.back(), &times[i]);
+    tunnel_frames += sim.world().sceneAtArcLength(26.0 * sim.timestamp(i)) ==
+                     SceneType::kTunnel;
+  }
+  ASSERT_GE(tunnel_frames, 50u) << "the seed should drive through a tunnel";
+
+  // The largest error of a frame-to-frame motion, and the drift over the drive.
+  auto run = [&](const OdometryParams& odometry_params, double& drift_m) {
+    Odometry odometry(odometry_params);
+    PoseVector estimate;
+    for (std::size_t i = 0; i < clouds.size(); ++i)
+      estimate.push_back(
+          odometry.processFrame(clouds[i], sim.timestamp(i), i, times[i]).T_world_lidar);
+    const Pose3d T0_inv = sim.sensorPose(0).inverse();
+    double worst = 0.0;
+    for (std::size_t i = 1; i < estimate.size(); ++i) {
+      const Pose3d truth = (T0_inv * sim.sensorPose(i - 1)).inverse() * T0_inv *
+                           sim.sensorPose(i);
+      const Pose3d estimated = estimate[i - 1].inverse() * estimate[i];
+      worst = std::max(worst, (truth.inverse() * estimated).translation().norm());
+    }
+    drift_m = (estimate.back().translation() -
+               (T0_inv * sim.sensorPose(clouds.size() - 1)).translation())
+                  .norm();
+    return worst;
+  };
+  double drift = 0.0, drift_without = 0.0;
+  const double worst = run(OdometryParams(), drift);
+  OdometryParams without;
+  disableVehiclePrior(without);
+  const double worst_without = run(without, drift_without);
+  std::cout << "tunnel at 26 m/s (" << tunnel_frames << " frames): largest per-frame error "
+            << worst << " m, drift " << drift << " m over " << 2.6 * (clouds.size() - 1)
+            << " m; without the vehicle prior " << worst_without << " m, drift "
+            << drift_without << " m\n";
+  // Measured: 0.49 m and 1.3 m over 439 m; without the vehicle prior 1.27 m and 9.3 m.
+  EXPECT_LT(worst, 0.7);
+  EXPECT_LT(drift, 3.0);
 }
 
 } // namespace

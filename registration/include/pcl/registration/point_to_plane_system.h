@@ -144,8 +144,9 @@ public:
   /// min_support. Otherwise it is degenerate as well. Many rows that each change little
   /// along v (a tunnel's walls, whose normals fitted to noisy points lean a few degrees
   /// along the road) add up to a fair eigenvalue but do not fix the motion; a few
-  /// surfaces that face along v (a post, a cabinet's side) do. This is the localizability idea of X-ICP (Tuna et al., 2023),
-  /// reduced to a count. \throws std::logic_error for a support test without kept rows.
+  /// surfaces that face along v (a post, a cabinet's side) do. This is the localizability
+  /// idea of X-ICP (Tuna et al., 2023), reduced to a count. \throws std::logic_error for
+  /// a support test without kept rows.
   Step solveDegeneracyAware(double min_ratio,
                             const Vector6d* to_anchor = nullptr,
                             double min_support = 0.0,
@@ -154,6 +155,15 @@ public:
   /// \brief The displacement from \a from to \a to in this tangent: omega * L
   /// (R_to = Exp(omega) R_from), then t_to - t_from.
   Vector6d tangent(const Eigen::Isometry3d& from, const Eigen::Isometry3d& to) const;
+
+  /// \brief A Gaussian prior on the step of solveDegeneracyAware: adds
+  /// \a weight * |dx - \a to_target|^2 to the cost it solves (the rows' weights and
+  /// the tangent's units). H(), g() and Step::information stay the data's. 0: none.
+  void setStepPrior(const Vector6d& to_target, double weight)
+  {
+    prior_target_ = to_target;
+    prior_weight_ = weight;
+  }
 
   const Matrix6d& H() const { return H_; }
   const Vector6d& g() const { return g_; }
@@ -164,6 +174,8 @@ private:
   Matrix6d H_ = Matrix6d::Zero();
   Vector6d g_ = Vector6d::Zero();
   double sum_w_ = 0.0;
+  Vector6d prior_target_ = Vector6d::Zero();
+  double prior_weight_ = 0.0;
   struct Row
   {
     Vector6d J;

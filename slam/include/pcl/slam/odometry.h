@@ -16,11 +16,11 @@
 #include <pcl/features/range_raster_image.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
+#include <pcl/rast/rigid_pose.h>
 #include <pcl/registration/correspondence_rigid_registration.h>
 #include <pcl/segmentation/sac_ground_removal.h>
 #include <pcl/slam/deskew.h>
 #include <pcl/slam/keyframe.h>
-#include <pcl/rast/rigid_pose.h>
 #include <string>
 #include <vector>
 
@@ -281,6 +281,23 @@ struct OdometryParams
   double prior_gate_m = 1.0;
   /// ... or rotation [deg].
   double prior_gate_deg = 5.0;
+  /// With a tracked velocity the gates shrink with the frame interval dt to what a
+  /// vehicle can deviate from constant velocity: translation min(prior_gate_m,
+  /// prior_gate_accel_mps2 * dt^2), rotation min(prior_gate_deg,
+  /// prior_gate_angular_accel_dps2 * dt^2). At 10 Hz 0.3 m and 1.5 deg; at 2 Hz the fixed
+  /// gates above. Weak features (20 inliers on the parked cars of an open field) 0.5-0.8
+  /// m and 0.8-1.8 deg off a tracked prior at 10 Hz were "near" it and set the pose
+  /// (doc/odometry.md). 0: no shrinking (the handheld preset: a turning head accelerates
+  /// far more).
+  double prior_gate_accel_mps2 = 30.0;
+  double prior_gate_angular_accel_dps2 = 150.0; ///< see prior_gate_accel_mps2
+  /// Where the gates shrink (a tracked velocity at a high frame rate), a dense step
+  /// anchored to the prior is also pulled toward it with this fraction of its total
+  /// weight: a direction the scan constrains only weakly (a tunnel's axis, 0.3-1 % of
+  /// the weight, mostly from wall normals tilted by noise and from moving cars)
+  /// follows the prior instead of sliding, and a constrained one barely moves
+  /// (doc/odometry.md). 0: off.
+  double dense_prior_ratio = 0.003;
   /// Two dense results the scan cannot tell apart: their RMS point-to-plane residuals
   /// differ by less than this [m] (about half the range noise). Where weak features
   /// and the prior end this close, the prior wins; where dense ICP slid this
@@ -326,6 +343,11 @@ const char* toString(SensorPreset preset);
 SensorPreset sensorPresetFromName(const std::string& name);
 /// \brief Change \a params as \a preset suggests (other members stay).
 void applySensorPreset(SensorPreset preset, OdometryParams& params);
+/// \brief No vehicle-dynamics prior: the prior gates stay prior_gate_m / _deg and the
+/// dense step is not pulled to the prior (prior_gate_accel_mps2,
+/// prior_gate_angular_accel_dps2 and dense_prior_ratio 0), as the handheld preset has
+/// it.
+void disableVehiclePrior(OdometryParams& params);
 
 /// \brief What guessSensorPreset saw in a scan.
 struct SensorGuess
