@@ -281,7 +281,7 @@ struct SimulatedWorld::Impl
   void assignGroundLevels();
   /// Whether path sample \a k conflicts with a listed sample on \a level.
   bool conflictsWithLevel(std::size_t k, int level) const;
-  static constexpr double kLevelReach = 20.0; ///< [m] horizontally
+  static constexpr double kLevelReach = 10.0; ///< [m] horizontally
   static constexpr double kLevelRise = 2.0;   ///< [m] of ground height
   void raiseEmbankments(std::vector<double>& field) const;
   /// The static objects, layer by layer (world_objects.cpp).
