@@ -247,8 +247,6 @@ struct Odometry::Impl
   void trackDense(const Frame& frame,
                   const FeatureTrack& track,
                   OdometryFrameResult& result) const;
-  /// Within prior_gate_m and prior_gate_deg of the frame's constant-velocity prior.
-  bool nearPrior(const Frame& frame, const Pose3d& T_world_lidar) const;
   /// The gates of nearPrior for \a frame: OdometryParams::prior_gate_m / _deg, shrunk
   /// to what a vehicle can deviate from a tracked velocity within the frame interval.
   struct PriorGate
@@ -257,6 +255,14 @@ struct Odometry::Impl
     bool dynamics; ///< shrunk: beyond it the motion is implausible, not just large
   };
   PriorGate priorGate(const Frame& frame) const;
+  /// Within \a gate of the frame's constant-velocity prior.
+  static bool
+  withinGate(const Frame& frame, const Pose3d& T_world_lidar, const PriorGate& gate);
+  /// Within priorGate(frame) of the frame's constant-velocity prior.
+  bool nearPrior(const Frame& frame, const Pose3d& T_world_lidar) const
+  {
+    return withinGate(frame, T_world_lidar, priorGate(frame));
+  }
   /// Dense options anchored to the frame's prior (degenerate directions take its
   /// value), pulled toward it by dense_prior_ratio where priorGate(frame).dynamics.
   DenseOptions priorAnchored(const Frame& frame) const

@@ -363,10 +363,11 @@ Odometry::Impl::priorGate(const Frame& frame) const
 }
 
 bool
-Odometry::Impl::nearPrior(const Frame& frame, const Pose3d& T_world_lidar) const
+Odometry::Impl::withinGate(const Frame& frame,
+                           const Pose3d& T_world_lidar,
+                           const PriorGate& gate)
 {
   const Pose3d diff = frame.T_world_prior.inverse() * T_world_lidar;
-  const PriorGate gate = priorGate(frame);
   return diff.translation().norm() <= gate.metres && angleDeg(diff) <= gate.degrees;
 }
 
@@ -401,9 +402,8 @@ Odometry::Impl::checkWeakFeatures(const Frame& frame,
       (!dense.success || second.num_correspondences > dense.num_correspondences ||
        prior_nearly_as_good)) {
     dense = second;
-    const Pose3d off = frame.T_world_prior.inverse() * track.T_world_features;
-    if (!near_prior && off.translation().norm() <= params.prior_gate_m &&
-        angleDeg(off) <= params.prior_gate_deg) {
+    const PriorGate fixed{params.prior_gate_m, params.prior_gate_deg, false};
+    if (!near_prior && withinGate(frame, track.T_world_features, fixed)) {
       // Beyond the vehicle's dynamics but within the fixed gates: the decimetres weak
       // features are off by (their pixels), resolved by the prior's fit; not a failure.
       result.message += "; beyond the vehicle's motion from the prior: dense from the prior";
