@@ -217,6 +217,16 @@ BM_ProcessFrameNoRefinement(benchmark::State& state)
 }
 BENCHMARK(BM_ProcessFrameNoRefinement)->Unit(benchmark::kMillisecond)->Iterations(210);
 
+/// Without the vehicle-dynamics prior (-no-vehicle-prior): its cost, side by side.
+void
+BM_ProcessFrameNoVehiclePrior(benchmark::State& state)
+{
+  rast::OdometryParams params;
+  rast::disableVehiclePrior(params);
+  processFrames(state, params);
+}
+BENCHMARK(BM_ProcessFrameNoVehiclePrior)->Unit(benchmark::kMillisecond)->Iterations(210);
+
 /// With motion compensation from the azimuth (-deskew on) on every frame: its cost side
 /// by side with BM_ProcessFrame (deskew_ms: both passes, the second one's dense
 /// refinement included).
