@@ -15,6 +15,7 @@
 
 #include "cli.h"
 #include "output_set.h"
+#include "prefetcher.h"
 #include "stop_signals.h"
 #include <pcl/visualization/map_render.h>
 #include "sensor_choice.h"
@@ -36,22 +37,18 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
-#include <condition_variable>
 #include <csignal>
 #include <cstdio>
-#include <deque>
 #include <filesystem>
 #include <functional>
 #include <iostream>
 #include <limits>
 #include <map>
-#include <mutex>
 #include <optional>
 #include <sstream>
 #include <stdexcept>
 #include <string>
 #include <sys/resource.h>
-#include <thread>
 #include <unistd.h>
 
 namespace {
@@ -217,86 +214,6 @@ framePosesOnMap(const std::vector<rast::FrameRecord>& frames,
                               f.T_keyframe_lidar));
   return poses;
 }
-
-/// One scan read ahead by the reader thread, or the reason it could not be read.
-struct ReadItem
-{
-  rast::ScanFrame frame;
-  bool ok = false;
-  std::string error;
-  std::string path;
-  double timestamp_s = 0.0;
-  std::size_t sequence_index = 0;
-};
-
-/// Reads scans on a thread of its own, a few frames ahead of tracking (bounded queue,
-/// condition variables). Stops early when interrupted.
-class Prefetcher
-{
-public:
-  Prefetcher(rast::SequenceReader& reader, std::size_t depth)
-    : reader_(reader), depth_(depth), thread_([this] { run(); })
-  {}
-  ~Prefetcher()
-  {
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      stop_ = true;
-    }
-    cv_.notify_all();
-    thread_.join();
-  }
-  /// \return false at the end of the sequence (or after an interrupt).
-  bool next(ReadItem& item)
-  {
-    std::unique_lock<std::mutex> lock(mutex_);
-    cv_.wait(lock, [&] { return done_ || !items_.empty(); });
-    if (items_.empty())
-      return false;
-    item = std::move(items_.front());
-    items_.pop_front();
-    cv_.notify_all();
-    return true;
-  }
-
-private:
-  void run()
-  {
-    for (std::size_t i = 0; i < reader_.size(); ++i) {
-      if (pcl_rast_tools::stopRequested())
-        break;
-      ReadItem item;
-      item.sequence_index = i;
-      item.path = reader_.path(i);
-      item.timestamp_s = reader_.timestamp(i);
-      try {
-        item.frame = reader_.read(i);
-        item.ok = true;
-      } catch (const rast::ScanReadError& e) {
-        item.error = e.what();
-      } catch (const std::exception& e) {
-        item.error = e.what();
-      }
-      std::unique_lock<std::mutex> lock(mutex_);
-      cv_.wait(lock, [&] { return stop_ || items_.size() < depth_; });
-      if (stop_)
-        break;
-      items_.push_back(std::move(item));
-      cv_.notify_all();
-    }
-    std::lock_guard<std::mutex> lock(mutex_);
-    done_ = true;
-    cv_.notify_all();
-  }
-
-  rast::SequenceReader& reader_;
-  std::size_t depth_;
-  std::mutex mutex_;
-  std::condition_variable cv_;
-  std::deque<ReadItem> items_;
-  bool done_ = false, stop_ = false;
-  std::thread thread_;
-};
 
 json
 timingJson(const rast::StageTiming& t)
@@ -589,11 +506,11 @@ run(int argc, char** argv)
   // processed is written below, summary.json names the error, and the exit code is 3.
   std::exception_ptr run_error;
   try {
-    Prefetcher prefetcher(reader, 4);
+    pcl_rast_tools::Prefetcher prefetcher(reader, 4);
     std::optional<pcl_rast_tools::ProgressBar> bar;
     if (!quiet)
       bar.emplace("pcl_rast_slam", reader.size());
-    ReadItem item;
+    pcl_rast_tools::ReadItem item;
     while (!pcl_rast_tools::stopRequested() && prefetcher.next(item)) {
       if (item.ok) {
         if (item.frame.cloud->empty()) {
