@@ -22,6 +22,7 @@
 
 #include "cli.h"
 #include "output_set.h"
+#include "prefetcher.h"
 #include "sensor_choice.h"
 #include "stop_signals.h"
 
@@ -134,6 +135,11 @@ run(int argc, char** argv)
   args.addInt("max-tracking-only",
               "frames the odometry may carry the pose alone before the run counts as lost",
               &params.max_tracking_only_frames);
+  args.addInt("place-every",
+              "after " + std::to_string(params.placement_backoff_after) +
+                  " failed placements in a row (off the map), try one every N frames "
+                  "(1: every frame)",
+              &params.placement_every);
   // Placement thresholds (SessionLocalizerParams::verification): fewer accept more
   // placements, between passes that share less, at the risk of a wrong one.
   const rast::LoopDetectorParams loop_defaults;
@@ -241,23 +247,28 @@ run(int argc, char** argv)
   std::optional<ProgressBar> bar;
   if (!quiet)
     bar.emplace("Localize", reader.size());
+  std::size_t placements_tried = 0;
   const pcl::StopWatch run_watch;
+  // Scans are read a few ahead on a thread of their own (about 2 ms a frame).
+  Prefetcher prefetcher(reader, 4);
+  ReadItem item;
   for (std::size_t i = 0; i < reader.size(); ++i) {
-    if (stopRequested()) {
+    if (stopRequested() || !prefetcher.next(item)) {
       stopped_at = i;
       reportStop("pcl_rast_localize", i);
       break;
     }
     rast::LocalizationFrame f;
-    try {
-      const rast::ScanFrame frame = reader.read(i);
-      f = localization->addScan(frame.cloud, frame.timestamp_s, i, frame.point_times_s);
+    if (item.ok) {
+      f = localization->addScan(item.frame.cloud, item.frame.timestamp_s, i,
+                                item.frame.point_times_s);
       ++usable;
-    } catch (const rast::ScanReadError& e) {
-      std::fprintf(stderr, "\nframe %zu: skipped: %s\n", i, e.what());
-      f = localization->addSkippedScan(reader.timestamp(i), i, e.what());
-      skipped.push_back({{"frame", i}, {"path", e.path()}, {"reason", e.what()}});
+    } else {
+      std::fprintf(stderr, "\nframe %zu: skipped: %s\n", i, item.error.c_str());
+      f = localization->addSkippedScan(item.timestamp_s, i, item.error);
+      skipped.push_back({{"frame", i}, {"path", item.path}, {"reason", item.error}});
     }
+    placements_tried += f.placement_tried ? 1 : 0;
     if (f.status == rast::LocalizationStatus::kLocalized && first_localized < 0)
       first_localized = static_cast<int>(i);
     if (f.jump) {
@@ -355,7 +366,10 @@ run(int argc, char** argv)
   summary["placement"] = {{"min_score", place_min_score},
                           {"min_initial_inliers", place_min_initial},
                           {"min_inliers", place_min_inliers},
-                          {"track_on_map", params.track_on_map}};
+                          {"track_on_map", params.track_on_map},
+                          {"backoff_after", params.placement_backoff_after},
+                          {"every", params.placement_every},
+                          {"tried", placements_tried}};
   summary["render_backend"] = render.backend;
   summary["error"] = nullptr;
   outputs.publish(summary);

@@ -278,6 +278,10 @@ MapLocalizationParams::isValid(std::string* why) const
   if (!(agree_m > 0.0) || !(agree_deg > 0.0))
     return fail("agree_m and agree_deg must be > 0, got " + std::to_string(agree_m) + " and " +
                 std::to_string(agree_deg));
+  if (placement_backoff_after < 0 || placement_every < 1)
+    return fail("placement_backoff_after must be >= 0 and placement_every >= 1, got " +
+                std::to_string(placement_backoff_after) + " and " +
+                std::to_string(placement_every));
   return true;
 }
 
@@ -325,6 +329,20 @@ struct MapLocalization::Impl
   };
   std::optional<Recent> recent_placement;
   std::deque<double> recent_rmse; ///< of the last confirmed alignments, since a placement
+  int failed_placements = 0;         ///< placement attempts in a row that placed nothing
+  std::size_t last_attempt_frame = 0; ///< the frame (count) of the last attempt
+
+  /// Whether this frame tries a placement (MapLocalizationParams::placement_backoff_after).
+  bool placementDue() const
+  {
+    if (params.placement_backoff_after == 0 ||
+        failed_placements < params.placement_backoff_after)
+      return true;
+    if (recent_placement &&
+        frames - recent_placement->frame <= static_cast<std::size_t>(params.tentative_window_frames))
+      return true; // a tentative placement waits for a second one to agree
+    return frames - last_attempt_frame >= static_cast<std::size_t>(params.placement_every);
+  }
 
   /// Why an alignment with residual \a rmse_m fits suspiciously worse than the last
   /// ones (empty: it does not; MapLocalizationParams::max_rmse_ratio).
@@ -681,6 +699,7 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
       f.correspondences = a->correspondences;
       f.rmse_m = a->rmse_m;
       f.message = "aligned to key-frame " + std::to_string(a->keyframe);
+      m.failed_placements = 0;
       m.confirm(a->T_world_lidar, dt);
       f.time_ms = watch.getTime();
       return f;
@@ -695,13 +714,21 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   Placement placement;
   if (!odo->features || odo->features->empty() || !scan || scan->empty()) {
     placement.message = "no features: " + odo->message;
-  } else if (scan != raw_scan && !odo->deskew_applied) {
-    placement = m.localizer.place(scan);
+  } else if (!m.placementDue()) {
+    placement.message = "not tried: " + std::to_string(m.failed_placements) +
+                        " failed placements in a row, one every " +
+                        std::to_string(m.params.placement_every) + " frames";
   } else {
-    KeyFrame query;
-    query.features = *odo->features;
-    query.cloud = scan;
-    placement = m.localizer.place(query);
+    f.placement_tried = true;
+    if (scan != raw_scan && !odo->deskew_applied) {
+      placement = m.localizer.place(scan);
+    } else {
+      KeyFrame query;
+      query.features = *odo->features;
+      query.cloud = scan;
+      placement = m.localizer.place(query);
+    }
+    m.last_attempt_frame = m.frames;
   }
   // A tentative placement is taken when an earlier scan's placement agrees with it.
   std::string agreement;
@@ -713,6 +740,8 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   if (placement.success || placement.tentative)
     m.recent_placement = Impl::Recent{placement.T_world_lidar, odo->T_world_lidar,
                                       m.odometry_run, m.frames};
+  if (f.placement_tried)
+    m.failed_placements = placement.success ? 0 : m.failed_placements + 1;
   if (placement.success)
     m.takePlacement(f, placement, predicted, dt);
   else if (predicted)

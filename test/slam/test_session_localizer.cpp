@@ -311,6 +311,51 @@ TEST(MapLocalization, TentativePlacementsAreTakenWhenTwoScansAgree)
   }
 }
 
+/// Off the map every placement fails: after placement_backoff_after of them in a row a
+/// placement is tried only every placement_every frames, and the first one tried on the
+/// map places the scan. Here 18 frames of a world that was never mapped, then the
+/// mapped loop's second pass.
+TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
+{
+  const MappedLoop m = mapLoop();
+  const auto elsewhere = pathSimulator(PathType::kStraight, 18, 0.0, 9);
+  for (const int every : {1, 3}) {
+    MapLocalizationParams params;
+    params.placement_backoff_after = 6;
+    params.placement_every = every;
+    MapLocalization localization(*m.localizer, m.odometry, params);
+    int tried_off = 0, first_localized = -1;
+    for (std::size_t i = 0; i < 18; ++i) {
+      const LocalizationFrame f =
+          localization.addScan(simulateFrame(*elsewhere, i), elsewhere->timestamp(i), i);
+      EXPECT_NE(f.status, LocalizationStatus::kLocalized) << "frame " << i << ": " << f.message;
+      tried_off += f.placement_tried ? 1 : 0;
+      if (!f.placement_tried) {
+        EXPECT_NE(f.message.find("not tried: "), std::string::npos) << f.message;
+      }
+    }
+    for (std::size_t j = 0; j < 8; ++j) {
+      const std::size_t i = 160 + j;
+      // The mapped loop's times go on after the other world's.
+      const LocalizationFrame f = localization.addScan(
+          simulateFrame(*m.sim, i), elsewhere->timestamp(17) + 0.1 * (j + 1), 18 + j);
+      if (f.status != LocalizationStatus::kLocalized)
+        continue;
+      if (first_localized < 0)
+        first_localized = static_cast<int>(j);
+      EXPECT_LT((f.T_world_lidar.translation() - m.truth(i).translation()).norm(), 0.5)
+          << "frame " << i << ": " << f.message;
+    }
+    std::printf("simulated: every %d: %d of 18 off-map frames tried a placement; the map's "
+                "first localized frame %d\n",
+                every, tried_off, first_localized);
+    // 6 failures, then frames 9, 12, 15 and 18 of the run.
+    EXPECT_EQ(tried_off, every == 1 ? 18 : 10);
+    ASSERT_GE(first_localized, 0) << "never localized on the map";
+    EXPECT_LT(first_localized, every) << "the first placement tried on the map places it";
+  }
+}
+
 TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
 {
   SessionLocalizerParams params;
@@ -346,6 +391,10 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
                 "reuse_target_m must be >= 0");
   expectInvalid(mapParams([](auto& p) { p.max_rmse_ratio = 0.5; }),
                 "max_rmse_ratio must be 0 or >= 1");
+  expectInvalid(mapParams([](auto& p) { p.placement_every = 0; }),
+                "placement_backoff_after must be >= 0 and placement_every >= 1, got 20 and 0");
+  expectInvalid(mapParams([](auto& p) { p.placement_backoff_after = -1; }),
+                "placement_backoff_after must be >= 0");
   SessionLocalizerParams tentative_two;
   tentative_two.tentative_min_inliers = 2;
   expectInvalid(tentative_two, "tentative_min_inliers must be 0 or >= 3, got 2");
