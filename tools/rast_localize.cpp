@@ -153,12 +153,18 @@ run(int argc, char** argv)
               "placement: RANSAC inliers of the first (ratio-test) matches", &place_min_initial);
   args.addInt("place-min-inliers", "placement: RANSAC inliers after guided matching",
               &place_min_inliers);
+  bool no_tentative_alignment = false;
+  args.addSwitch("no-tentative-alignment",
+                 "a tentative placement is taken only when a second placement agrees, not "
+                 "when the next scan's alignment to the map confirms it",
+                 &no_tentative_alignment);
   args.addSwitch("software-render", "render.png with OpenCV instead of VTK (faster)",
                  &software_render);
   args.addSwitch("quiet", "no progress bar", &quiet);
   if (!args.parse(argc, argv))
     return kExitOk;
   installStopSignals();
+  params.confirm_tentative_by_alignment = !no_tentative_alignment;
 
   // ---- validate everything before any work ----
   if (first < 0 || stride < 1 || last < -1 || (last >= 0 && last < first))
@@ -369,6 +375,7 @@ run(int argc, char** argv)
                           {"track_on_map", params.track_on_map},
                           {"backoff_after", params.placement_backoff_after},
                           {"every", params.placement_every},
+                          {"tentative_by_alignment", params.confirm_tentative_by_alignment},
                           {"tried", placements_tried}};
   summary["render_backend"] = render.backend;
   summary["error"] = nullptr;

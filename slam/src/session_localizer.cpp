@@ -326,6 +326,7 @@ struct MapLocalization::Impl
     Pose3d T_odom_lidar = Pose3d::Identity();
     int odometry_run = 0;
     std::size_t frame = 0;
+    bool tentative = false; ///< not taken (yet): it waits for a scan that agrees
   };
   std::optional<Recent> recent_placement;
   std::deque<double> recent_rmse; ///< of the last confirmed alignments, since a placement
@@ -564,6 +565,36 @@ struct MapLocalization::Impl
     return d_m <= params.agree_m && d_deg <= params.agree_deg;
   }
 
+  /// The map's alignment of this scan from the recent tentative placement, moved by
+  /// the odometry to the scan (odometry pose \a T_odom_lidar)
+  /// (MapLocalizationParams::confirm_tentative_by_alignment); nullopt when there is
+  /// none to confirm or the map does not confirm it. \a how says what confirmed what.
+  std::optional<Alignment> confirmTentative(const pcl::PointCloud<pcl::PointXYZI>& scan,
+                                            const Pose3d& T_odom_lidar,
+                                            std::string& how)
+  {
+    if (!params.confirm_tentative_by_alignment || !recent_placement ||
+        !recent_placement->tentative || recent_placement->odometry_run != odometry_run ||
+        recent_placement->frame >= frames ||
+        frames - recent_placement->frame > static_cast<std::size_t>(params.tentative_window_frames) ||
+        scan.empty())
+      return std::nullopt;
+    const Pose3d moved = normalizedPose(recent_placement->T_world_lidar *
+                                        (recent_placement->T_odom_lidar.inverse() * T_odom_lidar));
+    std::string why;
+    std::optional<Alignment> a = alignToMap(scan, moved, why);
+    if (a) {
+      char text[160];
+      std::snprintf(text, sizeof text,
+                    "aligned to key-frame %u from the tentative placement %zu frames before "
+                    "(%d points paired, rmse %.3f m)",
+                    static_cast<unsigned>(a->keyframe), frames - recent_placement->frame,
+                    a->correspondences, a->rmse_m);
+      how = text;
+    }
+    return a;
+  }
+
   /// No alignment and no placement: carried on by the odometry, or given up.
   void carryOn(LocalizationFrame& f, const Pose3d& predicted, const std::string& why)
   {
@@ -711,6 +742,24 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   // the compensated scan.
   if (!odo)
     track();
+  // A recent tentative placement that this scan's alignment to the map confirms.
+  std::string how;
+  if (const std::optional<Impl::Alignment> a =
+          scan ? m.confirmTentative(*scan, odo->T_world_lidar, how) : std::nullopt) {
+    Placement confirmed;
+    confirmed.success = true;
+    confirmed.T_world_lidar = a->T_world_lidar;
+    confirmed.keyframe = a->keyframe;
+    confirmed.message = how;
+    m.failed_placements = 0;
+    m.recent_placement.reset();
+    m.takePlacement(f, confirmed, predicted, dt);
+    m.recent_rmse.push_back(a->rmse_m);
+    f.correspondences = a->correspondences;
+    f.rmse_m = a->rmse_m;
+    f.time_ms = watch.getTime();
+    return f;
+  }
   Placement placement;
   if (!odo->features || odo->features->empty() || !scan || scan->empty()) {
     placement.message = "no features: " + odo->message;
@@ -739,7 +788,7 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   }
   if (placement.success || placement.tentative)
     m.recent_placement = Impl::Recent{placement.T_world_lidar, odo->T_world_lidar,
-                                      m.odometry_run, m.frames};
+                                      m.odometry_run, m.frames, !placement.success};
   if (f.placement_tried)
     m.failed_placements = placement.success ? 0 : m.failed_placements + 1;
   if (placement.success)

@@ -17,6 +17,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace {
@@ -262,7 +263,8 @@ TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
 }
 
 /// A placement short of the full inlier threshold is tentative: never taken alone,
-/// taken when the next scan's placement, moved by the odometry, agrees with it. Here no
+/// taken when the next scan's placement, moved by the odometry, agrees with it, or
+/// when the next scan's alignment to the map from it confirms it. Here no
 /// placement can reach the full threshold (1000 inliers), so every one is tentative.
 TEST(MapLocalization, TentativePlacementsAreTakenWhenTwoScansAgree)
 {
@@ -279,9 +281,11 @@ TEST(MapLocalization, TentativePlacementsAreTakenWhenTwoScansAgree)
   EXPECT_LT((p.T_world_lidar.translation() - m.truth(160).translation()).norm(), 0.5);
   EXPECT_NE(p.message.find("tentatively on key-frame"), std::string::npos) << p.message;
 
-  for (const int window : {3, 0}) {
+  for (const auto& [window, by_alignment] :
+       std::vector<std::pair<int, bool>>{{3, false}, {3, true}, {0, true}}) {
     MapLocalizationParams loc_params;
     loc_params.tentative_window_frames = window;
+    loc_params.confirm_tentative_by_alignment = by_alignment;
     MapLocalization localization(strict, m.odometry, loc_params);
     for (std::size_t i = 160; i < 166; ++i) {
       const LocalizationFrame f =
@@ -295,8 +299,10 @@ TEST(MapLocalization, TentativePlacementsAreTakenWhenTwoScansAgree)
       EXPECT_LT((f.T_world_lidar.translation() - m.truth(i).translation()).norm(), 0.5)
           << "frame " << i;
       if (i == 161) {
+        // Confirmed by this scan's alignment to the map, else by its own placement.
         EXPECT_TRUE(f.placed);
-        EXPECT_NE(f.message.find("agrees with the placement 1 frames before"),
+        EXPECT_NE(f.message.find(by_alignment ? "from the tentative placement 1 frames before"
+                                              : "agrees with the placement 1 frames before"),
                   std::string::npos)
             << f.message;
       }
