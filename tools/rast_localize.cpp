@@ -35,6 +35,9 @@
 #include <optional>
 #include <cstdio>
 #include <filesystem>
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
 #include <map>
 #include <sstream>
 #include <stdexcept>
@@ -319,6 +322,11 @@ run(int argc, char** argv)
   const std::size_t indexed_keyframes = localizer->numIndexed();
   localization.reset();
   localizer.reset();
+  // The localizer's memory goes back to the system before the render map is built:
+  // otherwise the peak is the two together (in glibc's free lists and the new map).
+#ifdef __GLIBC__
+  malloc_trim(0);
+#endif
   std::size_t map_total = 0;
   pcl::PointCloud<pcl::PointXYZI> render_map;
   try {
