@@ -333,14 +333,21 @@ struct MapLocalization::Impl
   int failed_placements = 0;         ///< placement attempts in a row that placed nothing
   std::size_t last_attempt_frame = 0; ///< the frame (count) of the last attempt
 
+  /// Whether the last placement (tentative or full) is at most tentative_window_frames
+  /// before this frame: a later scan may still agree with it.
+  bool recentWithinWindow() const
+  {
+    return recent_placement && frames - recent_placement->frame <=
+                                   static_cast<std::size_t>(params.tentative_window_frames);
+  }
+
   /// Whether this frame tries a placement (MapLocalizationParams::placement_backoff_after).
   bool placementDue() const
   {
     if (params.placement_backoff_after == 0 ||
         failed_placements < params.placement_backoff_after)
       return true;
-    if (recent_placement &&
-        frames - recent_placement->frame <= static_cast<std::size_t>(params.tentative_window_frames))
+    if (recentWithinWindow())
       return true; // a tentative placement waits for a second one to agree
     return frames - last_attempt_frame >= static_cast<std::size_t>(params.placement_every);
   }
@@ -549,8 +556,7 @@ struct MapLocalization::Impl
                         const Pose3d& T_odom_lidar,
                         std::string& how) const
   {
-    if (!recent_placement || recent_placement->odometry_run != odometry_run ||
-        frames - recent_placement->frame > static_cast<std::size_t>(params.tentative_window_frames))
+    if (!recentWithinWindow() || recent_placement->odometry_run != odometry_run)
       return false;
     const Pose3d moved = recent_placement->T_world_lidar *
                          (recent_placement->T_odom_lidar.inverse() * T_odom_lidar);
@@ -573,10 +579,8 @@ struct MapLocalization::Impl
                                             const Pose3d& T_odom_lidar,
                                             std::string& how)
   {
-    if (!params.confirm_tentative_by_alignment || !recent_placement ||
+    if (!params.confirm_tentative_by_alignment || !recentWithinWindow() ||
         !recent_placement->tentative || recent_placement->odometry_run != odometry_run ||
-        recent_placement->frame >= frames ||
-        frames - recent_placement->frame > static_cast<std::size_t>(params.tentative_window_frames) ||
         scan.empty())
       return std::nullopt;
     const Pose3d moved = normalizedPose(recent_placement->T_world_lidar *
