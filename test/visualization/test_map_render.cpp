@@ -333,4 +333,68 @@ TEST(MapRender, EmptyMapStillRendersTrajectory)
   EXPECT_EQ(img.cols, 640);
 }
 
+/// A dense map reaches the renderer as at most one point per pixel, the top-most: a
+/// roof over dense ground looks the same as the roof alone over the ground around it.
+TEST(MapRender, DenseMapDrawsTheTopPointOfEachPixel)
+{
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  const auto under_roof = [](float x, float y) {
+    return std::abs(x) < 5.0f && std::abs(y) < 5.0f;
+  };
+  const auto makeMap = [&](bool ground_under_roof) {
+    pcl::PointCloud<pcl::PointXYZI> map;
+    for (int i = 0; i < 400000; ++i) { // ground, 40 x 40 m
+      pcl::PointXYZI p;
+      p.x = 40.0f * unit(rng) - 20.0f;
+      p.y = 40.0f * unit(rng) - 20.0f;
+      p.z = 0.05f * unit(rng);
+      if (ground_under_roof || !under_roof(p.x, p.y))
+        map.push_back(p);
+    }
+    for (int i = 0; i < 20000; ++i) { // a flat roof 6 m up, 10 x 10 m
+      pcl::PointXYZI p;
+      p.x = 10.0f * unit(rng) - 5.0f;
+      p.y = 10.0f * unit(rng) - 5.0f;
+      p.z = 6.0f;
+      map.push_back(p);
+    }
+    return map;
+  };
+  MapRenderParams params;
+  params.width_px = 320;
+  params.height_px = 240;
+  params.force_software_fallback = true;
+  const auto dir = pcl_rast_test::makeTempDir("map_render");
+  const auto roofPixels = [&](const pcl::PointCloud<pcl::PointXYZI>& map,
+                              const std::string& name,
+                              std::size_t& drawn) {
+    MapRenderInput input;
+    input.map = &map;
+    const auto png = dir / name;
+    const MapRenderResult result = renderMapTopDown(input, params, png.string());
+    EXPECT_TRUE(result.success) << result.message;
+    drawn = result.map_points_drawn;
+    const cv::Mat img = cv::imread(png.string());
+    int count = 0;
+    for (int r = 0; r < img.rows; ++r)
+      for (int c = 0; c < img.cols; ++c) {
+        const cv::Vec3b bgr = img.at<cv::Vec3b>(r, c);
+        count += bgr[2] > 200 && bgr[1] > 180 && bgr[0] < 120; // viridis' yellow end
+      }
+    return count;
+  };
+  const pcl::PointCloud<pcl::PointXYZI> dense = makeMap(true);
+  std::size_t drawn = 0, drawn_open = 0;
+  const int roof = roofPixels(dense, "dense.png", drawn);
+  const int roof_open = roofPixels(makeMap(false), "open.png", drawn_open);
+  EXPECT_LE(drawn, static_cast<std::size_t>(params.width_px * params.height_px))
+      << "more map points drawn than the picture has pixels";
+  EXPECT_GT(drawn, 5000u);
+  EXPECT_LT(drawn, dense.size() / 4);
+  // The roof hides the ground under it: as many roof-coloured pixels either way.
+  EXPECT_GT(roof_open, 500);
+  EXPECT_NEAR(roof, roof_open, 0.02 * roof_open);
+}
+
 } // namespace

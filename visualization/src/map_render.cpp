@@ -293,6 +293,7 @@ renderMapTopDown(const MapRenderInput& input,
   };
   try {
     const Scene scene = prepareScene(input, params);
+    result.map_points_drawn = scene.points.size();
     cv::Mat image;
     std::vector<std::string> failures;
 

@@ -209,6 +209,41 @@ fitView(const MapRenderParams& params,
   v.cam_y_m = cy + (plot_cy - 0.5 * params.height_px) * v.m_per_px;
 }
 
+/// Keep the top-most map point of each pixel (and none off the picture): looking
+/// straight down, that is the point the picture shows there, and a map of millions
+/// of points would otherwise cost VTK's render process gigabytes (a 2474 key-frame
+/// session: 1.4 GB). Points stay sorted by increasing z.
+void
+keepTopPointPerPixel(const MapRenderParams& params, Scene& s)
+{
+  // Off-picture margin: a point drawn this far outside still reaches into the image.
+  const int margin = static_cast<int>(std::ceil(params.point_size_px)) + 1;
+  const int w = params.width_px + 2 * margin, h = params.height_px + 2 * margin;
+  std::vector<bool> taken(static_cast<std::size_t>(w) * static_cast<std::size_t>(h), false);
+  std::vector<std::size_t> kept;
+  for (std::size_t i = s.points.size(); i-- > 0;) { // highest first
+    const cv::Point2d px = s.view.toPixel(s.points[i].x(), s.points[i].y());
+    const double u = std::floor(px.x + 0.5) + margin, v = std::floor(px.y + 0.5) + margin;
+    if (!(u >= 0.0 && u < w && v >= 0.0 && v < h))
+      continue;
+    const std::size_t cell = static_cast<std::size_t>(v) * w + static_cast<std::size_t>(u);
+    if (taken[cell])
+      continue;
+    taken[cell] = true;
+    kept.push_back(i);
+  }
+  std::vector<Eigen::Vector3f> points;
+  std::vector<cv::Vec3b> bgr;
+  points.reserve(kept.size());
+  bgr.reserve(kept.size());
+  for (auto it = kept.rbegin(); it != kept.rend(); ++it) {
+    points.push_back(s.points[*it]);
+    bgr.push_back(s.point_bgr[*it]);
+  }
+  s.points = std::move(points);
+  s.point_bgr = std::move(bgr);
+}
+
 } // namespace
 
 Scene
@@ -224,6 +259,7 @@ prepareScene(const MapRenderInput& input, const MapRenderParams& params)
   colourPoints(input, params, s, xs, ys);
   copyLines(input, s);
   fitView(params, xs, ys, s);
+  keepTopPointPerPixel(params, s);
   return s;
 }
 

@@ -109,6 +109,10 @@ struct MapRenderResult
   /// Pid of the private Xvfb started for this call (already stopped and reaped),
   /// -1 if none was started.
   int xvfb_pid = -1;
+  /// Map points drawn: the top-most of each pixel, which is what a top-down picture
+  /// shows there; a map of millions of points reaches the renderer as at most one
+  /// point per pixel.
+  std::size_t map_points_drawn = 0;
   double render_time_ms = 0.0; ///< wall time of the whole call [ms]
 };
 
