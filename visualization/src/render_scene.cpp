@@ -10,6 +10,7 @@
 #include <cerrno>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -89,51 +90,106 @@ makeLayout(const MapRenderParams& params)
 
 namespace {
 
-/// The finite map points, drawn from low to high so that, as in the VTK depth test,
-/// higher structure covers lower structure when seen from above, and their colours
-/// (range from robust percentiles). \a xs, \a ys: their coordinates, for the bounds.
-void
-colourPoints(const MapRenderInput& input,
-             const MapRenderParams& params,
-             Scene& s,
-             std::vector<double>& xs,
-             std::vector<double>& ys)
+/// What the whole map contributes before the view is known: the height range of its
+/// finite points, and a sample of their coordinates and colour values (every
+/// stride-th point, at most about kMaxSamples) for the robust bounds and colour range.
+/// A map of millions of points is not copied whole.
+struct MapSample
+{
+  std::vector<double> xs, ys, values;
+  double z_min = std::numeric_limits<double>::infinity();
+  double z_max = -std::numeric_limits<double>::infinity();
+};
+
+constexpr std::size_t kMaxSamples = std::size_t(1) << 20;
+
+bool
+isDrawable(const pcl::PointXYZI& p, bool by_height)
+{
+  return std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z) &&
+         (by_height || std::isfinite(p.intensity));
+}
+
+MapSample
+sampleMap(const MapRenderInput& input, const MapRenderParams& params, Scene& s)
 {
   const bool by_height = params.colour_by == MapColourBy::kHeight;
-  std::vector<std::pair<float, std::size_t>> order;
-  order.reserve(input.map->size());
-  for (std::size_t i = 0; i < input.map->size(); ++i) {
-    const auto& p = (*input.map)[i];
-    if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z) &&
-        (by_height || std::isfinite(p.intensity)))
-      order.emplace_back(p.z, i);
+  const pcl::PointCloud<pcl::PointXYZI>& map = *input.map;
+  const std::size_t stride = std::max<std::size_t>(1, map.size() / kMaxSamples);
+  MapSample sample;
+  sample.xs.reserve(map.size() / stride + 1);
+  sample.ys.reserve(map.size() / stride + 1);
+  sample.values.reserve(map.size() / stride + 1);
+  std::size_t finite = 0;
+  for (const auto& p : map) {
+    if (!isDrawable(p, by_height))
+      continue;
+    sample.z_min = std::min<double>(sample.z_min, p.z);
+    sample.z_max = std::max<double>(sample.z_max, p.z);
+    if (finite++ % stride != 0)
+      continue;
+    sample.xs.push_back(p.x);
+    sample.ys.push_back(p.y);
+    sample.values.push_back(by_height ? p.z : p.intensity);
   }
-  std::sort(order.begin(), order.end());
-  std::vector<double> values;
-  values.reserve(order.size());
-  xs.reserve(order.size());
-  ys.reserve(order.size());
-  s.points.reserve(order.size());
-  for (const auto& [z, i] : order) {
-    const auto& p = (*input.map)[i];
-    s.points.emplace_back(p.x, p.y, p.z);
-    values.push_back(by_height ? p.z : p.intensity);
-    xs.push_back(p.x);
-    ys.push_back(p.y);
-  }
-
   // Colour range from robust percentiles.
-  if (!values.empty()) {
-    std::vector<double> tmp = values;
+  if (!sample.values.empty()) {
+    std::vector<double> tmp = sample.values;
     s.value_low = percentile(tmp, params.colour_low_percentile);
     s.value_high = percentile(tmp, params.colour_high_percentile);
   }
   if (!(s.value_high - s.value_low > 1e-9))
     s.value_high = s.value_low + 1.0;
-  s.point_bgr.reserve(values.size());
-  for (double v : values) {
+  return sample;
+}
+
+/// The map points drawn: the top-most of each pixel (none off the picture), which is
+/// what a picture looking straight down shows there, sorted by increasing height so
+/// that, as in the VTK depth test, higher structure covers lower structure; and their
+/// colours. A map of millions of points would otherwise cost VTK's render process
+/// gigabytes (a 2474 key-frame session: 1.4 GB).
+void
+colourTopPoints(const MapRenderInput& input, const MapRenderParams& params, Scene& s)
+{
+  const bool by_height = params.colour_by == MapColourBy::kHeight;
+  const pcl::PointCloud<pcl::PointXYZI>& map = *input.map;
+  // Off-picture margin: a point drawn this far outside still reaches into the image.
+  const int margin = static_cast<int>(std::ceil(params.point_size_px)) + 1;
+  const int w = params.width_px + 2 * margin, h = params.height_px + 2 * margin;
+  constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+  if (map.size() >= kNone)
+    throw std::invalid_argument("renderMapTopDown: a map of " + std::to_string(map.size()) +
+                                " points, more than can be drawn (" +
+                                std::to_string(kNone - 1) + ")");
+  std::vector<std::uint32_t> top(static_cast<std::size_t>(w) * static_cast<std::size_t>(h),
+                                 kNone);
+  for (std::size_t i = 0; i < map.size(); ++i) {
+    const auto& p = map[i];
+    if (!isDrawable(p, by_height))
+      continue;
+    const cv::Point2d px = s.view.toPixel(p.x, p.y);
+    const double u = std::floor(px.x + 0.5) + margin, v = std::floor(px.y + 0.5) + margin;
+    if (!(u >= 0.0 && u < w && v >= 0.0 && v < h))
+      continue;
+    std::uint32_t& t = top[static_cast<std::size_t>(v) * w + static_cast<std::size_t>(u)];
+    if (t == kNone || p.z >= map[t].z) // equal heights: the later point, drawn last
+      t = static_cast<std::uint32_t>(i);
+  }
+  std::vector<std::uint32_t> drawn;
+  for (const std::uint32_t t : top)
+    if (t != kNone)
+      drawn.push_back(t);
+  std::sort(drawn.begin(), drawn.end(), [&map](std::uint32_t a, std::uint32_t b) {
+    return map[a].z != map[b].z ? map[a].z < map[b].z : a < b;
+  });
+  s.points.reserve(drawn.size());
+  s.point_bgr.reserve(drawn.size());
+  for (const std::uint32_t i : drawn) {
+    const auto& p = map[i];
+    s.points.emplace_back(p.x, p.y, p.z);
+    const double value = by_height ? p.z : p.intensity;
     const double t =
-        std::clamp((v - s.value_low) / (s.value_high - s.value_low), 0.0, 1.0);
+        std::clamp((value - s.value_low) / (s.value_high - s.value_low), 0.0, 1.0);
     s.point_bgr.push_back(s.lut_bgr[static_cast<int>(std::lround(t * 255.0))]);
   }
 }
@@ -159,11 +215,10 @@ copyLines(const MapRenderInput& input, Scene& s)
 /// away do not shrink it, and everything else in full) fitted into the plot area
 /// between the title, legend and colour bar bands.
 void
-fitView(const MapRenderParams& params,
-        std::vector<double>& xs,
-        std::vector<double>& ys,
-        Scene& s)
+fitView(const MapRenderParams& params, MapSample& sample, Scene& s)
 {
+  std::vector<double>& xs = sample.xs;
+  std::vector<double>& ys = sample.ys;
   double x0 = std::numeric_limits<double>::infinity(), x1 = -x0, y0 = x0, y1 = -x0;
   double z0 = x0, z1 = -x0;
   auto grow = [&](const Eigen::Vector3d& p) {
@@ -173,12 +228,10 @@ fitView(const MapRenderParams& params,
   };
   if (!xs.empty()) {
     const bool robust = xs.size() > 1000;
-    grow({percentile(xs, robust ? 0.5 : 0.0),
-          percentile(ys, robust ? 0.5 : 0.0),
-          s.points.front().z()});
+    grow({percentile(xs, robust ? 0.5 : 0.0), percentile(ys, robust ? 0.5 : 0.0), sample.z_min});
     grow({percentile(xs, robust ? 99.5 : 100.0),
           percentile(ys, robust ? 99.5 : 100.0),
-          s.points.back().z()});
+          sample.z_max});
   }
   for (const auto& p : s.trajectory)
     grow(p);
@@ -209,41 +262,6 @@ fitView(const MapRenderParams& params,
   v.cam_y_m = cy + (plot_cy - 0.5 * params.height_px) * v.m_per_px;
 }
 
-/// Keep the top-most map point of each pixel (and none off the picture): looking
-/// straight down, that is the point the picture shows there, and a map of millions
-/// of points would otherwise cost VTK's render process gigabytes (a 2474 key-frame
-/// session: 1.4 GB). Points stay sorted by increasing z.
-void
-keepTopPointPerPixel(const MapRenderParams& params, Scene& s)
-{
-  // Off-picture margin: a point drawn this far outside still reaches into the image.
-  const int margin = static_cast<int>(std::ceil(params.point_size_px)) + 1;
-  const int w = params.width_px + 2 * margin, h = params.height_px + 2 * margin;
-  std::vector<bool> taken(static_cast<std::size_t>(w) * static_cast<std::size_t>(h), false);
-  std::vector<std::size_t> kept;
-  for (std::size_t i = s.points.size(); i-- > 0;) { // highest first
-    const cv::Point2d px = s.view.toPixel(s.points[i].x(), s.points[i].y());
-    const double u = std::floor(px.x + 0.5) + margin, v = std::floor(px.y + 0.5) + margin;
-    if (!(u >= 0.0 && u < w && v >= 0.0 && v < h))
-      continue;
-    const std::size_t cell = static_cast<std::size_t>(v) * w + static_cast<std::size_t>(u);
-    if (taken[cell])
-      continue;
-    taken[cell] = true;
-    kept.push_back(i);
-  }
-  std::vector<Eigen::Vector3f> points;
-  std::vector<cv::Vec3b> bgr;
-  points.reserve(kept.size());
-  bgr.reserve(kept.size());
-  for (auto it = kept.rbegin(); it != kept.rend(); ++it) {
-    points.push_back(s.points[*it]);
-    bgr.push_back(s.point_bgr[*it]);
-  }
-  s.points = std::move(points);
-  s.point_bgr = std::move(bgr);
-}
-
 } // namespace
 
 Scene
@@ -255,11 +273,10 @@ prepareScene(const MapRenderInput& input, const MapRenderParams& params)
   s.lut_bgr = makeLut(params.colour_map);
   s.layout = makeLayout(params);
   s.value_label = params.colour_by == MapColourBy::kHeight ? "height [m]" : "intensity";
-  std::vector<double> xs, ys;
-  colourPoints(input, params, s, xs, ys);
+  MapSample sample = sampleMap(input, params, s);
   copyLines(input, s);
-  fitView(params, xs, ys, s);
-  keepTopPointPerPixel(params, s);
+  fitView(params, sample, s);
+  colourTopPoints(input, params, s);
   return s;
 }
 
