@@ -43,6 +43,8 @@ PointToPlaneParams::isValid(std::string* why) const
              std::to_string(plane_covariance_epsilon);
   else if (max_source_points < 0)
     reason = "max_source_points must be >= 0, got " + std::to_string(max_source_points);
+  else if (threads < 1 || threads > 2)
+    reason = "threads must be 1 or 2, got " + std::to_string(threads);
   else if (max_iterations < 1)
     reason = "max_iterations must be >= 1, got " + std::to_string(max_iterations);
   else if (!finite_non_negative(convergence_translation_m))

@@ -8,7 +8,9 @@
 #include <cmath>
 #include <pcl/registration/point_to_plane_refinement.h>
 #include <pcl/registration/voxel_hash_map.h>
+#include <exception>
 #include <stdexcept>
+#include <thread>
 
 namespace pcl {
 namespace rast {
@@ -35,6 +37,120 @@ struct VoxelStats
   Eigen::Matrix3d sum_outer = Eigen::Matrix3d::Zero();
   Eigen::Array3i cell;
 };
+
+
+/// Below these sizes a second thread costs more than it saves.
+constexpr std::size_t kMinParallelPoints = 20000;
+constexpr std::size_t kMinParallelVoxels = 1000;
+
+/// Statistics of the finite points [first, last) into \a voxels, in order of first
+/// appearance, indexed by \a voxel_of_cell.
+void
+voxelStats(const PointVector& points,
+           std::size_t first,
+           std::size_t last,
+           double inverse_voxel_m,
+           VoxelHashMap& voxel_of_cell,
+           std::vector<VoxelStats>& voxels)
+{
+  voxel_of_cell.reset((last - first) / 32);
+  voxels.reserve((last - first) / 4 + 16);
+  for (std::size_t i = first; i < last; ++i) {
+    const Eigen::Vector3d& p = points[i];
+    if (!p.allFinite())
+      continue;
+    const Eigen::Array3i c = cellOf(p, inverse_voxel_m);
+    const auto [v, inserted] =
+        voxel_of_cell.insert(keyOf(c), static_cast<int>(voxels.size()));
+    if (inserted) {
+      voxels.emplace_back();
+      voxels.back().cell = c;
+    }
+    VoxelStats& s = voxels[v];
+    ++s.count;
+    s.sum += p;
+    s.sum_outer.noalias() += p * p.transpose();
+  }
+}
+
+/// The plane of \a voxel, fitted to the raw points of its 3x3x3 voxel block (5x5x5
+/// where that holds fewer than normal_neighbours): false where that neighbourhood is
+/// not planar (PointToPlaneParams::max_surface_variation) or is one scan ring.
+bool
+planeNormal(const VoxelStats& voxel,
+            const std::vector<VoxelStats>& voxels,
+            const VoxelHashMap& voxel_of_cell,
+            const PointToPlaneParams& params,
+            Eigen::Vector3d& normal)
+{
+  const int k = params.normal_neighbours;
+  int count = 0;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d sum_outer = Eigen::Matrix3d::Zero();
+  for (int radius = 1; radius <= 2 && count < k; ++radius) {
+    count = 0;
+    sum.setZero();
+    sum_outer.setZero();
+    for (int dx = -radius; dx <= radius; ++dx)
+      for (int dy = -radius; dy <= radius; ++dy)
+        for (int dz = -radius; dz <= radius; ++dz) {
+          const int j = voxel_of_cell.find(packVoxelKey(
+              voxel.cell.x() + dx, voxel.cell.y() + dy, voxel.cell.z() + dz));
+          if (j < 0)
+            continue;
+          count += voxels[j].count;
+          sum += voxels[j].sum;
+          sum_outer += voxels[j].sum_outer;
+        }
+  }
+  if (count < k)
+    return false;
+  // E[p p^T] - mean mean^T: in double, cancellation costs ~1e-12 m^2 at 100 m range.
+  const Eigen::Vector3d mean = sum / count;
+  const Eigen::Matrix3d covariance = sum_outer / count - mean * mean.transpose();
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+  eig.computeDirect(covariance); // closed form: ~10x faster than the iterative solver
+  const Eigen::Vector3d lambda = eig.eigenvalues().cwiseMax(0.0); // ascending
+  const double lambda_sum = lambda.sum();
+  // Collinear neighbourhoods (one scan ring) have no defined normal: lambda_1 ~ 0.
+  if (lambda_sum <= 0.0 || lambda(0) > params.max_surface_variation * lambda_sum ||
+      lambda(1) < 1e-2 * lambda(2))
+    return false;
+  normal = eig.eigenvectors().col(0).normalized();
+  return true;
+}
+
+/// \a a and \b b, on two threads when \a parallel (an exception in either is rethrown
+/// here, after both ended), else one after the other.
+template <typename A, typename B>
+void
+runBoth(bool parallel, A&& a, B&& b)
+{
+  if (!parallel) {
+    a();
+    b();
+    return;
+  }
+  std::exception_ptr error_b;
+  std::thread thread([&] {
+    try {
+      b();
+    } catch (...) {
+      error_b = std::current_exception();
+    }
+  });
+  std::exception_ptr error_a;
+  try {
+    a();
+  } catch (...) {
+    error_a = std::current_exception();
+  }
+  thread.join();
+  if (error_a)
+    std::rethrow_exception(error_a);
+  if (error_b)
+    std::rethrow_exception(error_b);
+}
 
 } // namespace
 
@@ -107,26 +223,31 @@ PointToPlaneTarget::build(const PointVector& points,
   const double voxel_m =
       params.target_voxel_size_m > 0.0 ? params.target_voxel_size_m : 0.3;
   const double inverse_voxel_m = 1.0 / voxel_m;
-  VoxelHashMap voxel_of_cell;
-  voxel_of_cell.reset(points.size() / 32);
-  std::vector<VoxelStats> voxels;
-  voxels.reserve(points.size() / 4 + 16);
-  for (const auto& p : points) {
-    if (!p.allFinite())
-      continue;
-    const Eigen::Array3i c = cellOf(p, inverse_voxel_m);
+  // With two threads, each takes half of the points; the second half's voxels are then
+  // merged into the first's in order of first appearance: the voxels come out in the
+  // order one pass finds them (only the summation order of their sums differs).
+  const bool parallel = params.threads >= 2 && points.size() >= kMinParallelPoints;
+  const std::size_t half = parallel ? points.size() / 2 : points.size();
+  VoxelHashMap voxel_of_cell, second_of_cell;
+  std::vector<VoxelStats> voxels, second;
+  runBoth(
+      parallel,
+      [&] { voxelStats(points, 0, half, inverse_voxel_m, voxel_of_cell, voxels); },
+      [&] {
+        voxelStats(points, half, points.size(), inverse_voxel_m, second_of_cell, second);
+      });
+  for (const VoxelStats& s2 : second) {
     const auto [v, inserted] =
-        voxel_of_cell.insert(keyOf(c), static_cast<int>(voxels.size()));
+        voxel_of_cell.insert(keyOf(s2.cell), static_cast<int>(voxels.size()));
     if (inserted) {
-      voxels.emplace_back();
-      voxels.back().cell = c;
+      voxels.push_back(s2);
+      continue;
     }
-    VoxelStats& s = voxels[v];
-    ++s.count;
-    s.sum += p;
-    s.sum_outer.noalias() += p * p.transpose();
+    VoxelStats& s1 = voxels[v];
+    s1.count += s2.count;
+    s1.sum += s2.sum;
+    s1.sum_outer += s2.sum_outer;
   }
-  const int k = params.normal_neighbours;
   if (static_cast<int>(voxels.size()) < 3)
     throw std::invalid_argument(
         "PointToPlaneTarget::build: " + std::to_string(voxels.size()) +
@@ -138,47 +259,31 @@ PointToPlaneTarget::build(const PointVector& points,
   // A source needs at most max_planes planes: fit them on evenly spread voxels only.
   const std::size_t stride =
       max_planes > 0 ? std::max<std::size_t>(1, voxels.size() / (2 * max_planes)) : 1;
-  PointVector planar_points, planar_normals;
-  planar_points.reserve(voxels.size() / stride + 1);
-  planar_normals.reserve(voxels.size() / stride + 1);
-  for (std::size_t v = 0; v < voxels.size(); v += stride) {
-    const VoxelStats& voxel = voxels[v];
-    int count = 0;
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    Eigen::Matrix3d sum_outer = Eigen::Matrix3d::Zero();
-    // 3x3x3 block; 5x5x5 where that holds too few points (sparse, far surfaces).
-    for (int radius = 1; radius <= 2 && count < k; ++radius) {
-      count = 0;
-      sum.setZero();
-      sum_outer.setZero();
-      for (int dx = -radius; dx <= radius; ++dx)
-        for (int dy = -radius; dy <= radius; ++dy)
-          for (int dz = -radius; dz <= radius; ++dz) {
-            const int j = voxel_of_cell.find(packVoxelKey(
-                voxel.cell.x() + dx, voxel.cell.y() + dy, voxel.cell.z() + dz));
-            if (j < 0)
-              continue;
-            count += voxels[j].count;
-            sum += voxels[j].sum;
-            sum_outer += voxels[j].sum_outer;
-          }
+  const std::size_t fitted = (voxels.size() + stride - 1) / stride;
+  // Two threads take the first and the second half of the voxels fitted; their planes
+  // are concatenated in order, as one thread finds them.
+  const bool parallel_fit = params.threads >= 2 && fitted >= kMinParallelVoxels;
+  const std::size_t split = parallel_fit ? fitted / 2 : fitted;
+  PointVector planar_points, planar_normals, second_points, second_normals;
+  const auto fit = [&](std::size_t first, std::size_t last, PointVector& out_points,
+                       PointVector& out_normals) {
+    out_points.reserve(last - first);
+    out_normals.reserve(last - first);
+    for (std::size_t j = first; j < last; ++j) {
+      Eigen::Vector3d normal;
+      const VoxelStats& voxel = voxels[j * stride];
+      if (planeNormal(voxel, voxels, voxel_of_cell, params, normal)) {
+        out_points.push_back(voxel.sum / voxel.count);
+        out_normals.push_back(normal);
+      }
     }
-    if (count < k)
-      continue;
-    // E[p p^T] - mean mean^T: in double, cancellation costs ~1e-12 m^2 at 100 m range.
-    const Eigen::Vector3d mean = sum / count;
-    const Eigen::Matrix3d covariance = sum_outer / count - mean * mean.transpose();
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
-    eig.computeDirect(covariance); // closed form: ~10x faster than the iterative solver
-    const Eigen::Vector3d lambda = eig.eigenvalues().cwiseMax(0.0); // ascending
-    const double lambda_sum = lambda.sum();
-    // Collinear neighbourhoods (one scan ring) have no defined normal: lambda_1 ~ 0.
-    if (lambda_sum <= 0.0 || lambda(0) > params.max_surface_variation * lambda_sum ||
-        lambda(1) < 1e-2 * lambda(2))
-      continue;
-    planar_points.push_back(voxel.sum / voxel.count);
-    planar_normals.push_back(eig.eigenvectors().col(0).normalized());
-  }
+  };
+  runBoth(
+      parallel_fit,
+      [&] { fit(0, split, planar_points, planar_normals); },
+      [&] { fit(split, fitted, second_points, second_normals); });
+  planar_points.insert(planar_points.end(), second_points.begin(), second_points.end());
+  planar_normals.insert(planar_normals.end(), second_normals.begin(), second_normals.end());
   if (planar_points.empty())
     throw std::invalid_argument(
         "PointToPlaneTarget::build: no planar target point among " +

@@ -269,6 +269,45 @@ TEST(PointToPlaneRefinement, InvalidInputThrows)
   EXPECT_THROW(empty_target.build(PointVector(3, Eigen::Vector3d::Zero())), std::invalid_argument);
 }
 
+/// Two threads (PointToPlaneParams::threads) prepare the same planes in the same order
+/// as one: each half's voxels merge in order of first appearance.
+TEST(PointToPlaneRefinement, TwoThreadsPrepareTheSameTarget)
+{
+  PointVector points = sampleScene(3, 300);
+  points[points.size() / 2 + 7] = Eigen::Vector3d(NAN, 0.0, 0.0); // skipped in either half
+  ASSERT_GE(points.size(), 40000u);
+  PointToPlaneParams one, two;
+  two.threads = 2;
+  PointToPlaneTarget a, b;
+  a.build(points, one);
+  b.build(points, two);
+  ASSERT_GT(a.size(), 2000u);
+  ASSERT_EQ(a.size(), b.size());
+  int differ = 0;
+  for (std::size_t i = 0; i < a.size(); ++i)
+    differ += (a.points()[i] - b.points()[i]).norm() > 1e-9 ||
+              std::abs(a.normals()[i].dot(b.normals()[i])) < 1.0 - 1e-9;
+  EXPECT_EQ(differ, 0) << "planes differ between one and two threads";
+
+  pcl::PointCloud<pcl::PointXYZI> cloud;
+  for (const auto& p : points) {
+    pcl::PointXYZI q;
+    q.getVector3fMap() = p.cast<float>();
+    cloud.push_back(q);
+  }
+  one.max_source_points = two.max_source_points = 1500; // planes on ~3000 voxels only
+  const PointToPlaneTarget sa = pcl::rast::prepareSource(cloud, one);
+  const PointToPlaneTarget sb = pcl::rast::prepareSource(cloud, two);
+  ASSERT_EQ(sa.size(), sb.size());
+  for (std::size_t i = 0; i < sa.size(); ++i)
+    ASSERT_LT((sa.points()[i] - sb.points()[i]).norm(), 1e-6) << "source point " << i;
+
+  std::string why;
+  two.threads = 3;
+  EXPECT_FALSE(two.isValid(&why));
+  EXPECT_NE(why.find("threads must be 1 or 2, got 3"), std::string::npos) << why;
+}
+
 // ---------------------------------------------------------------- real scan pairs
 
 /// Refine from identity; print accuracy with and without refinement and timings.

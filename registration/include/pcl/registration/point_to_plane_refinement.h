@@ -82,6 +82,11 @@ struct PointToPlaneParams
   double max_correction_m = 3.0;
   /// ... or this rotation (radians, default 30 deg).
   double max_correction_rad = 0.5235987755982988;
+  /// Threads preparing a scan (PointToPlaneTarget::build(), prepareSource()): 1, or 2
+  /// for the voxel statistics and the plane fits in two halves. The result is the same
+  /// up to the summation order of the voxel sums. For a caller that has a core to spare
+  /// (pcl_rast_localize); the SLAM's threads keep both cores busy already.
+  int threads = 1;
 
   /// \brief True when all values are in range; otherwise says why in *why (if given).
   bool

@@ -149,6 +149,7 @@ struct MapLocalizationParams
     p.min_overlap_ratio = 0.3;
     p.max_correction_m = 2.0;
     p.max_correction_rad = 5.0 * 3.14159265358979323846 / 180.0;
+    p.threads = 2; // the scan and new key-frames are prepared on both cores
     return p;
   }();
   /// ... with an RMS point-to-plane residual at most this [m] ...
