@@ -68,13 +68,15 @@ skipWithoutData(benchmark::State& state, const Pair& p)
   return false;
 }
 
+/// PointToPlaneTarget::build() (on \a threads, PointToPlaneParams::threads).
 void
-BM_PrepareTarget(benchmark::State& state, const std::string& name)
+BM_PrepareTarget(benchmark::State& state, const std::string& name, int threads)
 {
   const Pair& p = pair(name);
   if (skipWithoutData(state, p))
     return;
-  const PointToPlaneParams params;
+  PointToPlaneParams params;
+  params.threads = threads;
   for (auto _ : state) {
     PointToPlaneTarget target;
     target.build(p.target, params);
@@ -83,44 +85,15 @@ BM_PrepareTarget(benchmark::State& state, const std::string& name)
   state.counters["points"] = static_cast<double>(p.target.size());
 }
 
-/// PointToPlaneTarget::build() with PointToPlaneParams::threads = 2.
+/// prepareSource() (on \a threads, PointToPlaneParams::threads).
 void
-BM_PrepareTargetTwoThreads(benchmark::State& state, const std::string& name)
+BM_PrepareSource(benchmark::State& state, const std::string& name, int threads)
 {
   const Pair& p = pair(name);
   if (skipWithoutData(state, p))
     return;
   PointToPlaneParams params;
-  params.threads = 2;
-  for (auto _ : state) {
-    PointToPlaneTarget target;
-    target.build(p.target, params);
-    benchmark::DoNotOptimize(target.size());
-  }
-}
-
-void
-BM_PrepareSource(benchmark::State& state, const std::string& name)
-{
-  const Pair& p = pair(name);
-  if (skipWithoutData(state, p))
-    return;
-  const PointToPlaneParams params;
-  for (auto _ : state) {
-    const PointToPlaneTarget source = pcl::rast::prepareSource(p.source, params);
-    benchmark::DoNotOptimize(source.size());
-  }
-}
-
-/// prepareSource() with PointToPlaneParams::threads = 2.
-void
-BM_PrepareSourceTwoThreads(benchmark::State& state, const std::string& name)
-{
-  const Pair& p = pair(name);
-  if (skipWithoutData(state, p))
-    return;
-  PointToPlaneParams params;
-  params.threads = 2;
+  params.threads = threads;
   for (auto _ : state) {
     const PointToPlaneTarget source = pcl::rast::prepareSource(p.source, params);
     benchmark::DoNotOptimize(source.size());
@@ -165,17 +138,17 @@ BM_PrepareSourceAndRefine(benchmark::State& state, const std::string& name)
   }
 }
 
-BENCHMARK_CAPTURE(BM_PrepareTarget, scan_pair, std::string("scan_pair"))
+BENCHMARK_CAPTURE(BM_PrepareTarget, scan_pair, std::string("scan_pair"), 1)
     ->Unit(benchmark::kMillisecond);
-BENCHMARK_CAPTURE(BM_PrepareTarget, kitti_raw_22, std::string("kitti"))
+BENCHMARK_CAPTURE(BM_PrepareTarget, kitti_raw_22, std::string("kitti"), 1)
     ->Unit(benchmark::kMillisecond);
-BENCHMARK_CAPTURE(BM_PrepareTargetTwoThreads, kitti_raw_22, std::string("kitti"))
+BENCHMARK_CAPTURE(BM_PrepareTarget, kitti_raw_22_two_threads, std::string("kitti"), 2)
     ->Unit(benchmark::kMillisecond);
-BENCHMARK_CAPTURE(BM_PrepareSource, scan_pair, std::string("scan_pair"))
+BENCHMARK_CAPTURE(BM_PrepareSource, scan_pair, std::string("scan_pair"), 1)
     ->Unit(benchmark::kMillisecond);
-BENCHMARK_CAPTURE(BM_PrepareSource, kitti_raw_22, std::string("kitti"))
+BENCHMARK_CAPTURE(BM_PrepareSource, kitti_raw_22, std::string("kitti"), 1)
     ->Unit(benchmark::kMillisecond);
-BENCHMARK_CAPTURE(BM_PrepareSourceTwoThreads, kitti_raw_22, std::string("kitti"))
+BENCHMARK_CAPTURE(BM_PrepareSource, kitti_raw_22_two_threads, std::string("kitti"), 2)
     ->Unit(benchmark::kMillisecond);
 BENCHMARK_CAPTURE(BM_Refine, scan_pair, std::string("scan_pair"))->Unit(benchmark::kMillisecond);
 BENCHMARK_CAPTURE(BM_Refine, kitti_raw_22, std::string("kitti"))->Unit(benchmark::kMillisecond);
