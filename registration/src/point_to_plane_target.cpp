@@ -6,9 +6,9 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <exception>
 #include <pcl/registration/point_to_plane_refinement.h>
 #include <pcl/registration/voxel_hash_map.h>
-#include <exception>
 #include <stdexcept>
 #include <thread>
 
@@ -37,7 +37,6 @@ struct VoxelStats
   Eigen::Matrix3d sum_outer = Eigen::Matrix3d::Zero();
   Eigen::Array3i cell;
 };
-
 
 /// Below these sizes a second thread costs more than it saves.
 constexpr std::size_t kMinParallelPoints = 20000;
@@ -265,7 +264,9 @@ PointToPlaneTarget::build(const PointVector& points,
   const bool parallel_fit = params.threads >= 2 && fitted >= kMinParallelVoxels;
   const std::size_t split = parallel_fit ? fitted / 2 : fitted;
   PointVector planar_points, planar_normals, second_points, second_normals;
-  const auto fit = [&](std::size_t first, std::size_t last, PointVector& out_points,
+  const auto fit = [&](std::size_t first,
+                       std::size_t last,
+                       PointVector& out_points,
                        PointVector& out_normals) {
     out_points.reserve(last - first);
     out_normals.reserve(last - first);
@@ -283,7 +284,8 @@ PointToPlaneTarget::build(const PointVector& points,
       [&] { fit(0, split, planar_points, planar_normals); },
       [&] { fit(split, fitted, second_points, second_normals); });
   planar_points.insert(planar_points.end(), second_points.begin(), second_points.end());
-  planar_normals.insert(planar_normals.end(), second_normals.begin(), second_normals.end());
+  planar_normals.insert(
+      planar_normals.end(), second_normals.begin(), second_normals.end());
   if (planar_points.empty())
     throw std::invalid_argument(
         "PointToPlaneTarget::build: no planar target point among " +

@@ -274,7 +274,8 @@ TEST(PointToPlaneRefinement, InvalidInputThrows)
 TEST(PointToPlaneRefinement, TwoThreadsPrepareTheSameTarget)
 {
   PointVector points = sampleScene(3, 300);
-  points[points.size() / 2 + 7] = Eigen::Vector3d(NAN, 0.0, 0.0); // skipped in either half
+  points[points.size() / 2 + 7] =
+      Eigen::Vector3d(NAN, 0.0, 0.0); // skipped in either half
   ASSERT_GE(points.size(), 40000u);
   PointToPlaneParams one, two;
   two.threads = 2;

@@ -158,11 +158,11 @@ colourTopPoints(const MapRenderInput& input, const MapRenderParams& params, Scen
   const int w = params.width_px + 2 * margin, h = params.height_px + 2 * margin;
   constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
   if (map.size() >= kNone)
-    throw std::invalid_argument("renderMapTopDown: a map of " + std::to_string(map.size()) +
-                                " points, more than can be drawn (" +
-                                std::to_string(kNone - 1) + ")");
-  std::vector<std::uint32_t> top(static_cast<std::size_t>(w) * static_cast<std::size_t>(h),
-                                 kNone);
+    throw std::invalid_argument(
+        "renderMapTopDown: a map of " + std::to_string(map.size()) +
+        " points, more than can be drawn (" + std::to_string(kNone - 1) + ")");
+  std::vector<std::uint32_t> top(
+      static_cast<std::size_t>(w) * static_cast<std::size_t>(h), kNone);
   for (std::size_t i = 0; i < map.size(); ++i) {
     const auto& p = map[i];
     if (!isDrawable(p, by_height))
@@ -228,7 +228,9 @@ fitView(const MapRenderParams& params, MapSample& sample, Scene& s)
   };
   if (!xs.empty()) {
     const bool robust = xs.size() > 1000;
-    grow({percentile(xs, robust ? 0.5 : 0.0), percentile(ys, robust ? 0.5 : 0.0), sample.z_min});
+    grow({percentile(xs, robust ? 0.5 : 0.0),
+          percentile(ys, robust ? 0.5 : 0.0),
+          sample.z_min});
     grow({percentile(xs, robust ? 99.5 : 100.0),
           percentile(ys, robust ? 99.5 : 100.0),
           sample.z_max});
