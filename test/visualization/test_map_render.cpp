@@ -397,4 +397,49 @@ TEST(MapRender, DenseMapDrawsTheTopPointOfEachPixel)
   EXPECT_NEAR(roof, roof_open, 0.02 * roof_open);
 }
 
+/// Map points that fall outside the fitted view (the bounds are robust percentiles) are
+/// not drawn under the title, where the text would be written over them.
+TEST(MapRender, NoMapPointsUnderTheTitle)
+{
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  pcl::PointCloud<pcl::PointXYZI> map;
+  const auto add = [&map](float x, float y) {
+    pcl::PointXYZI p;
+    p.x = x;
+    p.y = y;
+    p.z = 0.0f;
+    p.intensity = 0.0f;
+    map.push_back(p);
+  };
+  for (int i = 0; i < 100000; ++i) // ground, 100 x 100 m
+    add(100.0f * unit(rng), 100.0f * unit(rng));
+  for (int i = 0; i < 400; ++i) // beyond the 99.5th percentile: north of the view
+    add(100.0f * unit(rng), 100.0f + 10.0f * unit(rng));
+  MapRenderInput input;
+  input.map = &map;
+  MapRenderParams params;
+  params.width_px = 640;
+  params.height_px = 480;
+  params.force_software_fallback = true;
+  const auto png = pcl_rast_test::makeTempDir("map_render") / "title.png";
+  const MapRenderResult result = renderMapTopDown(input, params, png.string());
+  ASSERT_TRUE(result.success) << result.message;
+  const cv::Mat img = cv::imread(png.string());
+  ASSERT_FALSE(img.empty());
+  // All map points have one height: the dark purple end of viridis (B - G > 40); the
+  // title and subtitle are grey or black (B = G = R).
+  const auto purple = [&img](int r0, int r1) {
+    int n = 0;
+    for (int r = r0; r < r1; ++r)
+      for (int c = 0; c < img.cols; ++c) {
+        const cv::Vec3b bgr = img.at<cv::Vec3b>(r, c);
+        n += bgr[0] > bgr[1] + 40;
+      }
+    return n;
+  };
+  EXPECT_GT(purple(img.rows / 3, 2 * img.rows / 3), 10000) << "the map is missing";
+  EXPECT_EQ(purple(0, 30), 0) << "map points drawn under the title";
+}
+
 } // namespace

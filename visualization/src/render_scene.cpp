@@ -143,7 +143,8 @@ sampleMap(const MapRenderInput& input, const MapRenderParams& params, Scene& s)
   return sample;
 }
 
-/// The map points drawn: the top-most of each pixel (none off the picture), which is
+/// The map points drawn: the top-most of each pixel (none off the picture, and none
+/// under the title, legend and colour bar, which would be written over them), which is
 /// what a picture looking straight down shows there, sorted by increasing height so
 /// that, as in the VTK depth test, higher structure covers lower structure; and their
 /// colours. A map of millions of points would otherwise cost VTK's render process
@@ -156,6 +157,11 @@ colourTopPoints(const MapRenderInput& input, const MapRenderParams& params, Scen
   // Off-picture margin: a point drawn this far outside still reaches into the image.
   const int margin = static_cast<int>(std::ceil(params.point_size_px)) + 1;
   const int w = params.width_px + 2 * margin, h = params.height_px + 2 * margin;
+  // Grid cells (pixels shifted by the margin) clear of the text bands.
+  const Layout& l = s.layout;
+  const double u_end = std::min<double>(w, params.width_px - l.right_band_px + margin);
+  const double v_begin = std::floor(l.title_band_px) + margin;
+  const double v_end = std::min<double>(h, params.height_px - l.bottom_band_px + margin);
   constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
   if (map.size() >= kNone)
     throw std::invalid_argument(
@@ -169,7 +175,7 @@ colourTopPoints(const MapRenderInput& input, const MapRenderParams& params, Scen
       continue;
     const cv::Point2d px = s.view.toPixel(p.x, p.y);
     const double u = std::floor(px.x + 0.5) + margin, v = std::floor(px.y + 0.5) + margin;
-    if (!(u >= 0.0 && u < w && v >= 0.0 && v < h))
+    if (!(u >= 0.0 && u < u_end && v >= v_begin && v < v_end))
       continue;
     std::uint32_t& t = top[static_cast<std::size_t>(v) * w + static_cast<std::size_t>(u)];
     if (t == kNone || p.z >= map[t].z) // equal heights: the later point, drawn last
