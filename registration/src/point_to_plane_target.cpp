@@ -6,11 +6,11 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
-#include <exception>
+#include <future>
 #include <pcl/registration/point_to_plane_refinement.h>
 #include <pcl/registration/voxel_hash_map.h>
 #include <stdexcept>
-#include <thread>
+#include <utility>
 
 namespace pcl {
 namespace rast {
@@ -119,8 +119,9 @@ planeNormal(const VoxelStats& voxel,
   return true;
 }
 
-/// \a a and \b b, on two threads when \a parallel (an exception in either is rethrown
-/// here, after both ended), else one after the other.
+/// \a a and \a b, on two threads when \a parallel, else one after the other. An
+/// exception from either reaches the caller, after both ended (a future from
+/// std::async waits for its thread when destroyed).
 template <typename A, typename B>
 void
 runBoth(bool parallel, A&& a, B&& b)
@@ -130,25 +131,9 @@ runBoth(bool parallel, A&& a, B&& b)
     b();
     return;
   }
-  std::exception_ptr error_b;
-  std::thread thread([&] {
-    try {
-      b();
-    } catch (...) {
-      error_b = std::current_exception();
-    }
-  });
-  std::exception_ptr error_a;
-  try {
-    a();
-  } catch (...) {
-    error_a = std::current_exception();
-  }
-  thread.join();
-  if (error_a)
-    std::rethrow_exception(error_a);
-  if (error_b)
-    std::rethrow_exception(error_b);
+  std::future<void> second = std::async(std::launch::async, std::forward<B>(b));
+  a();
+  second.get();
 }
 
 } // namespace

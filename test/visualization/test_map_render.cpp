@@ -315,22 +315,41 @@ TEST(MapRender, UnwritablePathReportsFailure)
   }
 }
 
+/// A picture drawn by the OpenCV fallback into a fresh folder: the result and the
+/// picture read back (empty when none was written).
+struct FallbackPicture
+{
+  MapRenderResult result;
+  cv::Mat image;
+};
+
+FallbackPicture
+renderWithFallback(const MapRenderInput& input,
+                   int width_px,
+                   int height_px,
+                   const std::string& name)
+{
+  MapRenderParams params;
+  params.width_px = width_px;
+  params.height_px = height_px;
+  params.force_software_fallback = true;
+  const auto png = pcl_rast_test::makeTempDir("map_render") / name;
+  FallbackPicture picture;
+  picture.result = renderMapTopDown(input, params, png.string());
+  picture.image = cv::imread(png.string());
+  return picture;
+}
+
 TEST(MapRender, EmptyMapStillRendersTrajectory)
 {
   const TestScene scene;
   const pcl::PointCloud<pcl::PointXYZI> empty;
   MapRenderInput input = scene.input;
   input.map = &empty;
-  MapRenderParams params;
-  params.width_px = 640;
-  params.height_px = 480;
-  params.force_software_fallback = true;
-  const auto png = pcl_rast_test::makeTempDir("map_render") / "render.png";
-  const MapRenderResult result = renderMapTopDown(input, params, png.string());
-  ASSERT_TRUE(result.success) << result.message;
-  const cv::Mat img = cv::imread(png.string());
-  ASSERT_FALSE(img.empty());
-  EXPECT_EQ(img.cols, 640);
+  const FallbackPicture picture = renderWithFallback(input, 640, 480, "render.png");
+  ASSERT_TRUE(picture.result.success) << picture.result.message;
+  ASSERT_FALSE(picture.image.empty());
+  EXPECT_EQ(picture.image.cols, 640);
 }
 
 /// A dense map reaches the renderer as at most one point per pixel, the top-most: a
@@ -361,21 +380,16 @@ TEST(MapRender, DenseMapDrawsTheTopPointOfEachPixel)
     }
     return map;
   };
-  MapRenderParams params;
-  params.width_px = 320;
-  params.height_px = 240;
-  params.force_software_fallback = true;
-  const auto dir = pcl_rast_test::makeTempDir("map_render");
+  constexpr int kWidthPx = 320, kHeightPx = 240;
   const auto roofPixels = [&](const pcl::PointCloud<pcl::PointXYZI>& map,
                               const std::string& name,
                               std::size_t& drawn) {
     MapRenderInput input;
     input.map = &map;
-    const auto png = dir / name;
-    const MapRenderResult result = renderMapTopDown(input, params, png.string());
-    EXPECT_TRUE(result.success) << result.message;
-    drawn = result.map_points_drawn;
-    const cv::Mat img = cv::imread(png.string());
+    const FallbackPicture picture = renderWithFallback(input, kWidthPx, kHeightPx, name);
+    EXPECT_TRUE(picture.result.success) << picture.result.message;
+    drawn = picture.result.map_points_drawn;
+    const cv::Mat& img = picture.image;
     int count = 0;
     for (int r = 0; r < img.rows; ++r)
       for (int c = 0; c < img.cols; ++c) {
@@ -388,7 +402,7 @@ TEST(MapRender, DenseMapDrawsTheTopPointOfEachPixel)
   std::size_t drawn = 0, drawn_open = 0;
   const int roof = roofPixels(dense, "dense.png", drawn);
   const int roof_open = roofPixels(makeMap(false), "open.png", drawn_open);
-  EXPECT_LE(drawn, static_cast<std::size_t>(params.width_px * params.height_px))
+  EXPECT_LE(drawn, static_cast<std::size_t>(kWidthPx * kHeightPx))
       << "more map points drawn than the picture has pixels";
   EXPECT_GT(drawn, 5000u);
   EXPECT_LT(drawn, dense.size() / 4);
@@ -418,14 +432,9 @@ TEST(MapRender, NoMapPointsUnderTheTitle)
     add(100.0f * unit(rng), 100.0f + 10.0f * unit(rng));
   MapRenderInput input;
   input.map = &map;
-  MapRenderParams params;
-  params.width_px = 640;
-  params.height_px = 480;
-  params.force_software_fallback = true;
-  const auto png = pcl_rast_test::makeTempDir("map_render") / "title.png";
-  const MapRenderResult result = renderMapTopDown(input, params, png.string());
-  ASSERT_TRUE(result.success) << result.message;
-  const cv::Mat img = cv::imread(png.string());
+  const FallbackPicture picture = renderWithFallback(input, 640, 480, "title.png");
+  ASSERT_TRUE(picture.result.success) << picture.result.message;
+  const cv::Mat& img = picture.image;
   ASSERT_FALSE(img.empty());
   // All map points have one height: the dark purple end of viridis (B - G > 40); the
   // title and subtitle are grey or black (B = G = R).
