@@ -2,18 +2,20 @@
 /// future or foreign sessions refused naming the file before any work; saves that
 /// replace a session whole or leave it as it was.
 
+#include "temp_cleanup.h"
+
+#include <boost/crc.hpp>
+#include <filesystem>
+#include <fstream>
+#include <gtest/gtest.h>
+#include <iterator>
+#include <pcl/rast/file_checksum.h>
 #include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/rast_slam.h>
 #include <pcl/slam/session.h>
-
-#include <gtest/gtest.h>
-
-#include "temp_cleanup.h"
-
-#include <filesystem>
-#include <fstream>
-#include <iterator>
+#include <random>
 #include <string>
+#include <vector>
 
 namespace {
 
@@ -113,6 +115,40 @@ loadError(const fs::path& dir, const SessionLoadOptions& options = SessionLoadOp
   }
   ADD_FAILURE() << "loadSession(" << dir << ") did not throw";
   return SessionError("", "");
+}
+
+// The checksums of saved sessions and output sets are CRC-32 (IEEE), the check value
+// of the CRC catalogue and Boost.CRC's, which computed them before zlib did: sessions
+// saved before still load. The second file crosses the 1 MiB read blocks.
+TEST(FileChecksum, IsTheStandardCrc32AcrossReadBlocks)
+{
+  const fs::path dir = tempDir("crc");
+  const fs::path check = dir / "check.txt";
+  std::ofstream(check, std::ios::binary) << "123456789";
+  EXPECT_EQ(fileCrc32(check.string()), "cbf43926");
+
+  std::vector<char> bytes((5u << 19) + 7); // 2.5 MiB and a few bytes
+  std::mt19937 rng(42);
+  for (char& b : bytes)
+    b = static_cast<char>(rng());
+  const fs::path big = dir / "big.bin";
+  std::ofstream(big, std::ios::binary)
+      .write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  boost::crc_32_type reference;
+  reference.process_bytes(bytes.data(), bytes.size());
+  char hex[9];
+  std::snprintf(hex, sizeof hex, "%08x", reference.checksum());
+  EXPECT_EQ(fileCrc32(big.string()), hex);
+
+  const fs::path empty = dir / "empty.bin";
+  std::ofstream(empty, std::ios::binary).close();
+  EXPECT_EQ(fileCrc32(empty.string()), "00000000");
+  try {
+    fileCrc32((dir / "missing.bin").string());
+    FAIL() << "a missing file was checksummed";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("missing.bin"), std::string::npos) << e.what();
+  }
 }
 
 TEST(Session, ASavedRunLoadsBackAsItWas)
