@@ -396,6 +396,9 @@ run(int argc, char** argv)
       throw std::invalid_argument("-output " + output + " is the -session folder");
     const auto load_start = std::chrono::steady_clock::now();
     rast::SessionLoadOptions load_options;
+    // The clouds are checked now and read when needed (placements, the merged map and
+    // session): holding them all was a third of a multi-session run's memory.
+    load_options.load_clouds = false;
     if (sensor != "auto")
       load_options.expected_sensor_preset = sensor;
     try {
@@ -624,8 +627,12 @@ run(int argc, char** argv)
   // map, so a tilted or handheld first scan still renders as a view from above.
   Eigen::Matrix3d R_level = Eigen::Matrix3d::Identity();
   if (!kf_poses.empty()) {
-    pcl::PointCloud<pcl::PointXYZI> first =
-        on_map ? *map_keyframes.front()->cloud : *slam.map()->keyFrameCloud(0);
+    const pcl::PointCloud<pcl::PointXYZI>::ConstPtr first_cloud =
+        on_map ? rast::sessionCloud(merge->merged, map_keyframes.front()->id)
+               : slam.map()->keyFrameCloud(0);
+    pcl::PointCloud<pcl::PointXYZI> first;
+    if (first_cloud)
+      first = *first_cloud;
     const rast::Pose3d T_first = on_map ? map_keyframes.front()->T_world_keyframe
                                         : kf_poses.front();
     const Eigen::Matrix3f R = T_first.rotation().cast<float>();
@@ -651,7 +658,7 @@ run(int argc, char** argv)
     render_map.add(tile);
   };
   if (on_map)
-    rast::forEachSessionMapTile(map_keyframes, map_leaf_m, add_tile);
+    rast::forEachSessionMapTile(merge->merged, map_keyframes, map_leaf_m, add_tile);
   else
     slam.map()->forEachMapTile(map_leaf_m, add_tile);
   pcd.commit();

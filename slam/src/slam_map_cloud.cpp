@@ -2,17 +2,17 @@
 /// \brief The merged map of SlamMap: voxel means (voxelDownsample), the compact
 /// key-frame clouds, the tile-by-tile map builder and the streamed, atomic PCD writer.
 
-#include <pcl/io/pcd_io.h>
-#include <pcl/rast/atomic_file.h>
-#include <pcl/registration/voxel_hash_map.h>
-#include <pcl/slam/slam_map.h>
-
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>
 #include <functional>
 #include <limits>
+#include <pcl/io/pcd_io.h>
+#include <pcl/rast/atomic_file.h>
+#include <pcl/registration/voxel_hash_map.h>
+#include <pcl/slam/session.h>
+#include <pcl/slam/slam_map.h>
 #include <stdexcept>
 #include <unistd.h>
 
@@ -356,6 +356,30 @@ SlamMap::forEachMapTile(double leaf_m, const MapTileSink& sink) const
   forEachTile(sources, leaf_m, sink);
 }
 
+namespace {
+
+/// A tile source of a key-frame cloud that \a cloud_of returns (read again for each tile
+/// the cloud reaches when it is not kept in memory).
+TileSource
+sessionTileSource(const KeyFrame& kf,
+                  const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                  std::function<pcl::PointCloud<pcl::PointXYZI>::ConstPtr()> cloud_of)
+{
+  TileSource source;
+  source.T_world_keyframe = kf.T_world_keyframe;
+  for (const auto& p : cloud.points)
+    source.radius_m = std::max(source.radius_m, p.getVector3fMap().cast<double>().norm());
+  source.for_each_point =
+      [cloud_of = std::move(cloud_of)](const TileSource::PointVisitor& visit) {
+        const pcl::PointCloud<pcl::PointXYZI>::ConstPtr cloud = cloud_of();
+        for (const auto& p : cloud->points)
+          visit(p.getVector3fMap().cast<double>(), p.intensity);
+      };
+  return source;
+}
+
+} // namespace
+
 void
 forEachSessionMapTile(const std::vector<KeyFrame::Ptr>& keyframes,
                       double leaf_m,
@@ -366,16 +390,39 @@ forEachSessionMapTile(const std::vector<KeyFrame::Ptr>& keyframes,
   for (const KeyFrame::Ptr& kf : keyframes) {
     if (!kf || !kf->cloud || kf->cloud->empty())
       continue;
-    TileSource source;
-    source.T_world_keyframe = kf->T_world_keyframe;
-    for (const auto& p : kf->cloud->points)
-      source.radius_m = std::max(source.radius_m, p.getVector3fMap().cast<double>().norm());
     const pcl::PointCloud<pcl::PointXYZI>::ConstPtr cloud = kf->cloud;
-    source.for_each_point = [cloud](const TileSource::PointVisitor& visit) {
-      for (const auto& p : cloud->points)
-        visit(p.getVector3fMap().cast<double>(), p.intensity);
-    };
-    sources.push_back(std::move(source));
+    sources.push_back(sessionTileSource(*kf, *cloud, [cloud] { return cloud; }));
+  }
+  forEachTile(sources, leaf_m, sink);
+}
+
+void
+forEachSessionMapTile(const Session& session,
+                      const std::vector<KeyFrame::Ptr>& keyframes,
+                      double leaf_m,
+                      const SlamMap::MapTileSink& sink)
+{
+  checkLeaf("forEachSessionMapTile", leaf_m);
+  std::vector<TileSource> sources;
+  for (const KeyFrame::Ptr& kf : keyframes) {
+    if (!kf)
+      continue;
+    if (kf->cloud) { // in memory
+      if (kf->cloud->empty())
+        continue;
+      const pcl::PointCloud<pcl::PointXYZI>::ConstPtr cloud = kf->cloud;
+      sources.push_back(sessionTileSource(*kf, *cloud, [cloud] { return cloud; }));
+      continue;
+    }
+    if (!sessionHasCloud(session, kf->id))
+      continue;
+    // Read once for the radius, then again by each tile it reaches.
+    const pcl::PointCloud<pcl::PointXYZI>::ConstPtr cloud = sessionCloud(session, kf->id);
+    if (!cloud || cloud->empty())
+      continue;
+    const KeyFrameId id = kf->id;
+    sources.push_back(sessionTileSource(
+        *kf, *cloud, [&session, id] { return sessionCloud(session, id); }));
   }
   forEachTile(sources, leaf_m, sink);
 }

@@ -218,6 +218,55 @@ TEST(Session, ASavedRunLoadsBackAsItWas)
   EXPECT_FALSE(light.keyframes.front()->cloud);
 }
 
+// A session loaded without its clouds still gives the whole map: the clouds are read
+// from its files tile by tile (pcl_rast_slam -session holds no prior cloud), the same
+// voxels as from the clouds in memory.
+TEST(Session, TheMapOfASessionLoadedWithoutCloudsIsReadFromItsFiles)
+{
+  const Session full = loadSession(savedSession().string());
+  SessionLoadOptions no_clouds;
+  no_clouds.load_clouds = false;
+  const Session light = loadSession(savedSession().string(), no_clouds);
+  ASSERT_FALSE(light.keyframes.front()->cloud);
+  struct MapSum
+  {
+    std::size_t points = 0, tiles = 0;
+    double x = 0.0, z = 0.0, intensity = 0.0;
+  };
+  const auto mapOf = [](const auto& build) {
+    MapSum sum;
+    build([&](const pcl::PointCloud<pcl::PointXYZI>& tile) {
+      ++sum.tiles;
+      for (const auto& p : tile.points) {
+        ++sum.points;
+        sum.x += p.x;
+        sum.z += p.z;
+        sum.intensity += p.intensity;
+      }
+    });
+    return sum;
+  };
+  const MapSum in_memory = mapOf([&](const SlamMap::MapTileSink& sink) {
+    forEachSessionMapTile(full.keyframes, 0.5, sink);
+  });
+  const MapSum from_files = mapOf([&](const SlamMap::MapTileSink& sink) {
+    forEachSessionMapTile(light, light.keyframes, 0.5, sink);
+  });
+  ASSERT_GT(in_memory.points, 1000u);
+  EXPECT_EQ(from_files.points, in_memory.points);
+  EXPECT_EQ(from_files.tiles, in_memory.tiles);
+  EXPECT_DOUBLE_EQ(from_files.x, in_memory.x);
+  EXPECT_DOUBLE_EQ(from_files.z, in_memory.z);
+  EXPECT_DOUBLE_EQ(from_files.intensity, in_memory.intensity);
+  // Without the session, key-frames with no cloud in memory add nothing.
+  const MapSum without_session = mapOf([&](const SlamMap::MapTileSink& sink) {
+    forEachSessionMapTile(light.keyframes, 0.5, sink);
+  });
+  EXPECT_EQ(without_session.points, 0u);
+  EXPECT_THROW(forEachSessionMapTile(light, light.keyframes, 0.0, [](const auto&) {}),
+               std::invalid_argument);
+}
+
 TEST(Session, LoopsAndASessionInMemoryRoundTrip)
 {
   Session session = loadSession(savedSession().string());

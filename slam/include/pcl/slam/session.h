@@ -141,6 +141,17 @@ forEachSessionMapTile(const std::vector<KeyFrame::Ptr>& keyframes,
                       double leaf_m,
                       const SlamMap::MapTileSink& sink);
 
+/// \brief forEachSessionMapTile for key-frames of \a session, whose clouds not in memory
+/// (a session loaded without them, SessionLoadOptions::load_clouds) are read from its
+/// files when a tile needs them (sessionCloud): the map is built without holding every
+/// cloud. \a session must list the key-frames' ids.
+/// \throws std::invalid_argument unless leaf_m > 0; SessionError when a cloud file no
+/// longer reads as loadSession checked it
+void forEachSessionMapTile(const Session& session,
+                           const std::vector<KeyFrame::Ptr>& keyframes,
+                           double leaf_m,
+                           const SlamMap::MapTileSink& sink);
+
 /// \brief The pose graph of a SLAM map's key-frames as loop closing optimizes it:
 /// nodes at the corrected poses (key-frame 0 fixed), odometry edges between
 /// consecutive key-frames and the \a loops that are active, with the information loop
