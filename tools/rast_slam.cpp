@@ -589,7 +589,8 @@ run(int argc, char** argv)
     rast::SessionInfo info;
     info.sensor_preset = rast::toString(preset);
     info.created_by = "pcl_rast_slam";
-    rast::Session drive = rast::sessionFromSlam(slam, info);
+    // The drive's clouds are expanded from the run's map when the merge needs them.
+    rast::Session drive = rast::sessionFromSlam(slam, info, /*clouds_on_demand=*/true);
     drive.drives.front().input = reader.scanFolder();
     rast::SessionMergeParams merge_params;
     merge_params.loop_closing = params.loop_closing;

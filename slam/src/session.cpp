@@ -452,9 +452,9 @@ sessionCloud(const Session& session, KeyFrameId id)
   const KeyFrame::Ptr& kf = session.keyframes.at(id);
   if (kf && kf->cloud)
     return kf->cloud;
-  if (id >= session.cloud_files.size() || session.cloud_files[id].path.empty())
-    return nullptr;
-  return readCloudFile(session.cloud_files[id], "session.json");
+  if (id < session.cloud_files.size() && !session.cloud_files[id].path.empty())
+    return readCloudFile(session.cloud_files[id], "session.json");
+  return session.cloud_source ? session.cloud_source(id) : nullptr;
 }
 
 bool
@@ -462,7 +462,8 @@ sessionHasCloud(const Session& session, KeyFrameId id)
 {
   const KeyFrame::Ptr& kf = session.keyframes.at(id);
   return (kf && kf->cloud && !kf->cloud->empty()) ||
-         (id < session.cloud_files.size() && session.cloud_files[id].points > 0);
+         (id < session.cloud_files.size() && session.cloud_files[id].points > 0) ||
+         (kf && !kf->cloud && session.cloud_source);
 }
 
 void
@@ -517,7 +518,7 @@ sessionComponentOf(const Session& session, KeyFrameId id)
 }
 
 Session
-sessionFromSlam(const RastSlam& slam, SessionInfo info)
+sessionFromSlam(const RastSlam& slam, SessionInfo info, bool clouds_on_demand)
 {
   const SlamMap::ConstPtr map = slam.map();
   Session session;
@@ -531,9 +532,15 @@ sessionFromSlam(const RastSlam& slam, SessionInfo info)
     copy->T_previous_keyframe = map->odometryEdge(kf->id); // as local BA left it
     copy->odometry_map_scans = kf->odometry_map_scans;
     copy->features = kf->features;
-    copy->cloud = map->keyFrameCloud(kf->id);
+    if (!clouds_on_demand)
+      copy->cloud = map->keyFrameCloud(kf->id);
     session.keyframes.push_back(std::move(copy));
   }
+  if (clouds_on_demand)
+    session.cloud_source =
+        [map](KeyFrameId id) -> pcl::PointCloud<pcl::PointXYZI>::ConstPtr {
+      return map->keyFrameCloud(id);
+    };
   session.loops = map->loopEdges();
   session.graph = keyFrameGraph(*map, session.loops, slam.params().loop_closing);
   if (info.num_frames == 0)

@@ -2,18 +2,16 @@
 /// \brief mergeSessions: a new drive anchored on a prior session by inter-session
 /// loops and optimized with its pose graph (session_merge.h).
 
-#include <pcl/slam/session_merge.h>
-
 #include "loop_closing.h"
-
-#include <pcl/slam/session_localizer.h>
-
-#include <pcl/common/time.h>
 
 #include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <memory>
+#include <pcl/common/time.h>
+#include <pcl/slam/session_localizer.h>
+#include <pcl/slam/session_merge.h>
 #include <stdexcept>
 #include <thread>
 
@@ -74,8 +72,22 @@ placeAll(const SessionLocalizer& prior,
   std::vector<Placement> placements(ids.size());
   std::atomic<std::size_t> next{0};
   const auto work = [&] {
-    for (std::size_t i = next++; i < ids.size(); i = next++)
-      placements[i] = prior.place(*drive.keyframes[ids[i]]);
+    for (std::size_t i = next++; i < ids.size(); i = next++) {
+      const KeyFrame& kf = *drive.keyframes[ids[i]];
+      if (kf.cloud) {
+        placements[i] = prior.place(kf);
+        continue;
+      }
+      // A cloud read when it is needed (Session::cloud_source, cloud_files).
+      KeyFrame query;
+      query.features = kf.features;
+      query.cloud = sessionCloud(drive, kf.id);
+      if (!query.cloud || query.cloud->empty()) {
+        placements[i].message = "key-frame " + std::to_string(kf.id) + " has no cloud";
+        continue;
+      }
+      placements[i] = prior.place(query);
+    }
   };
   std::vector<std::thread> threads;
   const int extra = std::min<int>(num_threads, static_cast<int>(ids.size())) - 1;
@@ -112,7 +124,8 @@ mergeSessions(const SessionLocalizer& prior,
   // ---- inter-session loops: each drive key-frame with features placed on the map ----
   std::vector<KeyFrameId> ids;
   for (std::size_t i = 0; i < drive.keyframes.size(); i += params.keyframe_stride)
-    if (!drive.keyframes[i]->features.empty() && drive.keyframes[i]->cloud)
+    if (!drive.keyframes[i]->features.empty() &&
+        sessionHasCloud(drive, static_cast<KeyFrameId>(i)))
       ids.push_back(static_cast<KeyFrameId>(i));
   result.keyframes_tried = static_cast<int>(ids.size());
   const std::vector<Placement> placements = placeAll(prior, drive, ids, params.num_threads);
@@ -192,6 +205,22 @@ mergeSessions(const SessionLocalizer& prior,
   for (const KeyFrame::Ptr& kf : old.keyframes)
     merged.keyframes.push_back(std::make_shared<KeyFrame>(*kf));
   merged.cloud_files = old.cloud_files; // clouds of a prior loaded without them
+  // Clouds neither held nor in a file: the prior's source below the drive's ids, the
+  // drive's (its files or its source) from them on. The drive's lookup is kept by the
+  // merged session: the drive may be gone when the clouds are read.
+  if (old.cloud_source || !drive.cloud_files.empty() || drive.cloud_source) {
+    auto drive_clouds = std::make_shared<Session>();
+    drive_clouds->keyframes = drive.keyframes;
+    drive_clouds->cloud_files = drive.cloud_files;
+    drive_clouds->cloud_source = drive.cloud_source;
+    merged.cloud_source =
+        [old_source = old.cloud_source, drive_clouds, offset](
+            KeyFrameId id) -> pcl::PointCloud<pcl::PointXYZI>::ConstPtr {
+      if (id < offset)
+        return old_source ? old_source(id) : nullptr;
+      return sessionCloud(*drive_clouds, id - offset);
+    };
+  }
   for (const KeyFrame::Ptr& kf : drive.keyframes) {
     auto copy = std::make_shared<KeyFrame>(*kf);
     copy->id = kf->id + offset;

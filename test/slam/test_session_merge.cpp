@@ -4,20 +4,19 @@
 /// loop, seed 3: the session maps frames 0-79, the drive covers 50-139; the other world
 /// seed 9).
 
+#include "simulated_drive.h"
+#include "temp_cleanup.h"
+
+#include <cstdio>
+#include <filesystem>
+#include <gtest/gtest.h>
+#include <memory>
 #include <pcl/evaluation/trajectory_evaluation.h>
 #include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/rast_slam.h>
 #include <pcl/slam/session.h>
 #include <pcl/slam/session_localizer.h>
 #include <pcl/slam/session_merge.h>
-
-#include <gtest/gtest.h>
-
-#include "simulated_drive.h"
-#include "temp_cleanup.h"
-
-#include <cstdio>
-#include <filesystem>
 #include <string>
 
 namespace {
@@ -27,23 +26,36 @@ namespace fs = std::filesystem;
 
 using pcl_rast_test::pathSimulator;
 
+/// SLAM over frames [first, last) of \a sim.
+std::unique_ptr<RastSlam>
+runDrive(const LidarSimulator& sim, std::size_t first, std::size_t last)
+{
+  SlamParams params;
+  params.deterministic = true;
+  auto slam = std::make_unique<RastSlam>(params);
+  for (std::size_t i = first; i < last; ++i) {
+    auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    sim.simulateFrame(i, *cloud);
+    slam->addScan(cloud, sim.timestamp(i), i - first);
+  }
+  slam->finish();
+  return slam;
+}
+
+SessionInfo
+hdl64Info()
+{
+  SessionInfo info;
+  info.sensor_preset = toString(SensorPreset::kHdl64);
+  info.created_by = "test_session_merge";
+  return info;
+}
+
 /// SLAM over frames [first, last) of \a sim, as an in-memory session.
 Session
 mapDrive(const LidarSimulator& sim, std::size_t first, std::size_t last)
 {
-  SlamParams params;
-  params.deterministic = true;
-  RastSlam slam(params);
-  for (std::size_t i = first; i < last; ++i) {
-    auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
-    sim.simulateFrame(i, *cloud);
-    slam.addScan(cloud, sim.timestamp(i), i - first);
-  }
-  slam.finish();
-  SessionInfo info;
-  info.sensor_preset = toString(SensorPreset::kHdl64);
-  info.created_by = "test_session_merge";
-  return sessionFromSlam(slam, info);
+  return sessionFromSlam(*runDrive(sim, first, last), hdl64Info());
 }
 
 /// ATE (SE(3)-aligned RMSE) of key-frame poses against the simulator's truth.
@@ -73,7 +85,8 @@ TEST(SessionMerge, AnOverlappingDriveIsJoinedAndOptimizedWithTheSession)
   const auto sim = pathSimulator(PathType::kLoop, 200, 0.25, 3);
   constexpr std::size_t kDriveFirst = 50;
   const Session prior = mapDrive(*sim, 0, 80);
-  const Session drive = mapDrive(*sim, kDriveFirst, 140);
+  std::unique_ptr<RastSlam> drive_run = runDrive(*sim, kDriveFirst, 140);
+  const Session drive = sessionFromSlam(*drive_run, hdl64Info());
   ASSERT_GT(prior.keyframes.size(), 5u);
   ASSERT_GT(drive.keyframes.size(), 5u);
   const double prior_ate = keyFrameAte(prior.keyframes, *sim, 0);
@@ -144,6 +157,42 @@ TEST(SessionMerge, AnOverlappingDriveIsJoinedAndOptimizedWithTheSession)
       n += !kf->features.empty() && kf->cloud ? 1 : 0;
     return n;
   }());
+
+  // The same drive with its clouds read from the run's map when needed
+  // (pcl_rast_slam -session): the same merge, and the same saved clouds once the run
+  // itself is gone.
+  Session lazy = sessionFromSlam(*drive_run, hdl64Info(), /*clouds_on_demand=*/true);
+  drive_run.reset();
+  ASSERT_EQ(lazy.keyframes.size(), drive.keyframes.size());
+  EXPECT_FALSE(lazy.keyframes.front()->cloud);
+  ASSERT_TRUE(sessionHasCloud(lazy, 0));
+  ASSERT_TRUE(sessionCloud(lazy, 0));
+  EXPECT_EQ(sessionCloud(lazy, 0)->size(), drive.keyframes.front()->cloud->size());
+  const SessionMergeResult lazy_r = mergeSessions(localizer, lazy);
+  EXPECT_EQ(lazy_r.keyframes_tried, r.keyframes_tried);
+  EXPECT_EQ(lazy_r.loops_used, r.loops_used);
+  ASSERT_EQ(lazy_r.drive_keyframe_poses.size(), r.drive_keyframe_poses.size());
+  for (std::size_t k = 0; k < r.drive_keyframe_poses.size(); ++k)
+    EXPECT_LT((lazy_r.drive_keyframe_poses[k].translation() -
+               r.drive_keyframe_poses[k].translation())
+                  .norm(),
+              1e-9)
+        << "key-frame " << k;
+  lazy = Session(); // the merged session keeps what it needs to read the drive's clouds
+  const fs::path lazy_dir = dir.string() + "_lazy";
+  pcl_rast_test::removeAtExit(lazy_dir);
+  saveSession(lazy_r.merged, lazy_dir.string());
+  const Session lazy_loaded = loadSession(lazy_dir.string());
+  ASSERT_EQ(lazy_loaded.keyframes.size(), loaded.keyframes.size());
+  for (std::size_t k = 0; k < loaded.keyframes.size(); ++k) {
+    ASSERT_EQ(static_cast<bool>(lazy_loaded.keyframes[k]->cloud),
+              static_cast<bool>(loaded.keyframes[k]->cloud))
+        << "key-frame " << k;
+    if (loaded.keyframes[k]->cloud)
+      EXPECT_EQ(lazy_loaded.keyframes[k]->cloud->size(),
+                loaded.keyframes[k]->cloud->size())
+          << "key-frame " << k;
+  }
 }
 
 TEST(SessionMerge, ADriveThatNeverMeetsTheMapStaysASeparateComponent)

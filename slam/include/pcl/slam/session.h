@@ -22,11 +22,11 @@
 /// the sensor preset and every file's size and checksum before it reads any cloud.
 /// \ingroup slam
 
+#include <cstddef>
+#include <functional>
 #include <pcl/slam/keyframe.h>
 #include <pcl/slam/pose_graph.h>
 #include <pcl/slam/slam_map.h>
-
-#include <cstddef>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -109,16 +109,22 @@ struct Session
   /// reads them from here when they are needed (sessionCloud). Empty in a session
   /// built in memory.
   std::vector<SessionCloudFile> cloud_files;
+  /// Where the clouds of key-frames that neither hold one nor have a file come from
+  /// (sessionFromSlam with clouds_on_demand: read from the run's map when needed, not
+  /// copied): the key-frame's cloud, or null when it has none. Empty: no such source.
+  std::function<pcl::PointCloud<pcl::PointXYZI>::ConstPtr(KeyFrameId)> cloud_source;
 };
 
 /// \brief The cloud of key-frame \a id: the one it holds, else the one its session
-/// file holds (read now; the file was checked by loadSession), else null.
+/// file holds (read now; the file was checked by loadSession), else the one
+/// Session::cloud_source gives, else null.
 /// \throws SessionError naming the file when it cannot be read or no longer holds the
 /// points session.json lists; std::out_of_range for an id beyond the key-frames.
 pcl::PointCloud<pcl::PointXYZI>::ConstPtr
 sessionCloud(const Session& session, KeyFrameId id);
 
-/// \brief Whether key-frame \a id has a cloud, held or in its session file.
+/// \brief Whether key-frame \a id has a cloud, held or in its session file (or may have
+/// one from Session::cloud_source, which is only known once it is read).
 bool
 sessionHasCloud(const Session& session, KeyFrameId id);
 
@@ -178,9 +184,11 @@ saveSession(const RastSlam& slam, const std::string& dir, SessionInfo info);
 
 /// \brief The finished \a slam as a session in memory (what saveSession(slam, ...) would
 /// write): key-frame clouds are expanded from the map's compact copies, key-frames whose
-/// features the run released have none.
+/// features the run released have none. With \a clouds_on_demand the clouds are not
+/// copied: Session::cloud_source expands one when it is needed (from the run's map,
+/// which the session keeps alive). A whole KITTI 00 drive's clouds copied are 600 MB.
 Session
-sessionFromSlam(const RastSlam& slam, SessionInfo info);
+sessionFromSlam(const RastSlam& slam, SessionInfo info, bool clouds_on_demand = false);
 
 /// \brief Save a session held in memory (a loaded or merged one) in \a dir, as above.
 /// \throws SessionError, or std::invalid_argument when key-frame ids are not 0..n-1 or
