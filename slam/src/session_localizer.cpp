@@ -92,6 +92,10 @@ SessionLocalizer::SessionLocalizer(Session session, const SessionLocalizerParams
     // target, so the cloud is read for the insertion and let go again.
     const bool read_cloud = !kf->cloud;
     kf->cloud = sessionCloud(impl_->session, kf->id);
+    if (!kf->cloud || kf->cloud->empty()) { // a cloud source that had none after all
+      kf->cloud.reset();
+      continue;
+    }
     impl_->detector->addKeyFrame(kf, kf->T_world_keyframe);
     if (read_cloud)
       kf->cloud.reset();
@@ -421,7 +425,8 @@ struct MapLocalization::Impl
     if (auto it = targets.find(kf.id); it != targets.end())
       return it->second;
     auto t = std::make_shared<PointToPlaneTarget>();
-    t->build(*sessionCloud(localizer.session(), kf.id), params.alignment);
+    if (const auto cloud = sessionCloud(localizer.session(), kf.id))
+      t->build(*cloud, params.alignment); // else empty: skipped by the alignment
     if (targets.size() >= kMaxTargets) {
       targets.erase(target_order.front());
       target_order.pop_front();
