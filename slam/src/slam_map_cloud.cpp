@@ -405,18 +405,10 @@ forEachSessionMapTile(const Session& session,
   checkLeaf("forEachSessionMapTile", leaf_m);
   std::vector<TileSource> sources;
   for (const KeyFrame::Ptr& kf : keyframes) {
-    if (!kf)
+    if (!kf || !sessionHasCloud(session, kf->id))
       continue;
-    if (kf->cloud) { // in memory
-      if (kf->cloud->empty())
-        continue;
-      const pcl::PointCloud<pcl::PointXYZI>::ConstPtr cloud = kf->cloud;
-      sources.push_back(sessionTileSource(*kf, *cloud, [cloud] { return cloud; }));
-      continue;
-    }
-    if (!sessionHasCloud(session, kf->id))
-      continue;
-    // Read once for the radius, then again by each tile it reaches.
+    // Held clouds come back at once; others are read here for the radius, then again
+    // by each tile they reach.
     const pcl::PointCloud<pcl::PointXYZI>::ConstPtr cloud = sessionCloud(session, kf->id);
     if (!cloud || cloud->empty())
       continue;
