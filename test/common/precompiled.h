@@ -1,7 +1,8 @@
-// The headers nearly every test program includes, parsed once per build and reused by
-// every test (test/CMakeLists.txt, PCL_RAST_TEST_PCH): parsing them took a third of a
-// test file's compile time. Only headers that stay stable belong here; a test still
-// includes what it uses itself, so it compiles without this file as well.
+// The headers most test programs include, parsed once per build and reused by every
+// test program (test/CMakeLists.txt, PCL_RAST_TEST_PCH): parsing them took a third of a
+// test file's compile time. The project headers here make every test program rebuild
+// when one of them changes; a test still includes what it uses itself, so it also
+// compiles with PCL_RAST_TEST_PCH=OFF.
 #pragma once
 
 #include <gtest/gtest.h>
