@@ -2,7 +2,8 @@
 /// \brief The odometry front end per stage on the real HDL-64 scans of
 /// ../shared/data/kitti-raw-22 (single thread): ground removal, rasterization, ORB
 /// extraction, matching + RANSAC + pose, and the whole Odometry::processFrame with the
-/// median of every stage (refinement included) reported as counters.
+/// median of every stage (refinement included) reported as counters. BM_RawSweep
+/// tracks simulated raw sweeps (not real data) without and with motion compensation.
 ///
 ///   build/benchmarks/bench_front_end --benchmark_repetitions=3
 ///
@@ -14,11 +15,12 @@
 #include <filesystem>
 #include <pcl/features/orb_raster_features.h>
 #include <pcl/features/range_raster_image.h>
+#include <pcl/io/sequence_reader.h>
 #include <pcl/registration/hamming_correspondence_estimation.h>
 #include <pcl/registration/rigid_ransac.h>
 #include <pcl/segmentation/sac_ground_removal.h>
+#include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/odometry.h>
-#include <pcl/io/sequence_reader.h>
 #include <vector>
 
 namespace {
@@ -149,24 +151,79 @@ BM_MatchRansacPose(benchmark::State& state)
 }
 BENCHMARK(BM_MatchRansacPose)->Unit(benchmark::kMillisecond);
 
-/// The whole front end frame by frame over the sequence (restarted at its end);
-/// counters give the median of every stage as the odometry measured it.
-void
-processFrames(benchmark::State& state, const rast::OdometryParams& params)
+/// A drive to track: scans, optional per-point times (as a PCD time field gives
+/// them), timestamps.
+struct Drive
 {
-  if (skipWithoutData(state))
-    return;
+  std::vector<Cloud::ConstPtr> scans;
+  std::vector<std::vector<float>> times; ///< empty: none
+  std::vector<double> stamps;
+};
+
+const Drive&
+realDrive()
+{
+  static const Drive d = [] {
+    Drive out;
+    out.scans = data().scans;
+    for (std::size_t i = 0; i < out.scans.size(); ++i)
+      out.stamps.push_back(0.1 * static_cast<double>(i));
+    return out;
+  }();
+  return d;
+}
+
+/// Simulated, not real data: 100 raw HDL-64 sweeps at 10 m/s around the generated
+/// loop (its corners turn at up to ~0.5 rad/s; seed 17), each column cast from the
+/// pose at its firing time, with the point times the simulator writes as a PCD field.
+const Drive&
+rawSweepDrive()
+{
+  static const Drive d = [] {
+    rast::PathParams path;
+    path.type = rast::PathType::kLoop;
+    path.num_frames = 100;
+    rast::LidarSimulatorParams params;
+    params.seed = 17;
+    params.num_threads = 2; // building the data only, not measured
+    params.raw_sweep = true;
+    rast::LidarSimulator sim(params, rast::generatePath(path));
+    Drive out;
+    for (std::size_t i = 0; i < sim.numFrames(); ++i) {
+      auto cloud = std::make_shared<Cloud>();
+      std::vector<float> times;
+      sim.simulateFrame(i, *cloud, &times);
+      out.scans.push_back(cloud);
+      out.times.push_back(std::move(times));
+      out.stamps.push_back(sim.timestamp(i));
+    }
+    return out;
+  }();
+  return d;
+}
+
+/// The whole front end frame by frame over \a drive (restarted at its end), with its
+/// point times when \a with_times; counters give the median of every stage as the
+/// odometry measured it.
+void
+processFrames(benchmark::State& state,
+              const rast::OdometryParams& params,
+              const Drive& drive,
+              bool with_times = false)
+{
   auto odometry = std::make_unique<rast::Odometry>(params);
   std::vector<rast::OdometryTimings> timings;
+  const std::vector<float> no_times;
   std::size_t i = 0, index = 0;
   for (auto _ : state) {
-    if (i == data().scans.size()) {
+    if (i == drive.scans.size()) {
       state.PauseTiming();
       odometry = std::make_unique<rast::Odometry>(params);
       i = 0;
       state.ResumeTiming();
     }
-    const auto r = odometry->processFrame(data().scans[i], 0.1 * index, index);
+    const auto r = odometry->processFrame(
+        drive.scans[i], drive.stamps[i], index, with_times ? drive.times[i] : no_times);
     ++i;
     ++index;
     if (i > 1) // the first frame of a run only builds the map
@@ -189,6 +246,15 @@ processFrames(benchmark::State& state, const rast::OdometryParams& params)
   state.counters["keyframe_ms"] = median(&rast::OdometryTimings::keyframe_ms);
   state.counters["deskew_ms"] = median(&rast::OdometryTimings::deskew_ms);
   state.counters["total_ms"] = median(&rast::OdometryTimings::total_ms);
+}
+
+/// processFrames on the real scans of kitti-raw-22.
+void
+processFrames(benchmark::State& state, const rast::OdometryParams& params)
+{
+  if (skipWithoutData(state))
+    return;
+  processFrames(state, params, realDrive());
 }
 
 void
@@ -298,6 +364,31 @@ BM_DeskewCloud(benchmark::State& state)
     benchmark::DoNotOptimize(rast::deskewCloud(scan, times, xi));
 }
 BENCHMARK(BM_DeskewCloud)->Unit(benchmark::kMillisecond);
+
+/// What compensation costs where it is needed (simulated raw sweeps, rawSweepDrive):
+/// the same scans tracked uncompensated (-deskew off), with their time field (-deskew
+/// auto on a PCD with times) and with times from the azimuth (-deskew on, .bin).
+/// Unlike KITTI's scans, compensated already, compensating these makes the alignment
+/// right rather than wrong, so the frame difference is the compensation's cost.
+void
+BM_RawSweep(benchmark::State& state)
+{
+  rast::OdometryParams params;
+  const int mode = static_cast<int>(state.range(0));
+  params.deskew.mode = mode == 2   ? rast::DeskewMode::kOn
+                       : mode == 1 ? rast::DeskewMode::kAuto
+                                   : rast::DeskewMode::kOff;
+  processFrames(state, params, rawSweepDrive(), mode == 1);
+  state.SetLabel(mode == 2   ? "deskew on (azimuth)"
+                 : mode == 1 ? "deskew auto (time field)"
+                             : "deskew off");
+}
+BENCHMARK(BM_RawSweep)
+    ->Arg(0)
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(200);
 
 } // namespace
 

@@ -87,6 +87,17 @@ TEST(Deskew, AzimuthTimesFollowTheKittiSweep)
     const double exact = -std::atan2(random[i].y, random[i].x) / (2.0 * kPi) * T;
     EXPECT_NEAR(t[i], exact, 2e-7) << i;
   }
+  // The same with another reference column and spin: the wrap into (-pi, pi] (branch-
+  // free, like the atan2) on every side of the reference.
+  SweepParams turned;
+  turned.reference_azimuth_deg = 135.0;
+  turned.clockwise = false;
+  const std::vector<float> t_turned = azimuthTimes(random, T, turned);
+  for (std::size_t i = 0; i < random.size(); ++i) {
+    const double a = std::remainder(
+        std::atan2(random[i].y, random[i].x) - 135.0 * kPi / 180.0, 2.0 * kPi);
+    EXPECT_NEAR(t_turned[i], a / (2.0 * kPi) * T, 2e-7) << i;
+  }
   // The times of some points only: the same values, in the order of the indices.
   const pcl::Indices some = {9999, 5, 17, 5, 0};
   const std::vector<float> t_some = azimuthTimes(random, some, T);
