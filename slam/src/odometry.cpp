@@ -296,7 +296,7 @@ Odometry::Impl::commitPose(const OdometryFrameResult& result)
 KeyFrame::Ptr
 Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
                              const RasterFeatureSet& features,
-                             const KeptPoints& kept)
+                             const pcl::PointCloud<pcl::PointXYZI>& cloud)
 {
   auto kf = std::make_shared<KeyFrame>();
   kf->id = next_keyframe_id++;
@@ -311,8 +311,20 @@ Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
   kf->odometry_map_scans = map_scans;
 
   // The voxelized scan the key-frame keeps (memory: keyframe_voxel_size_m) ...
-  kf->cloud = kept.keyframe_voxels;
-  insertMapPoints(kept.map_points, result.T_world_lidar);
+  const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
+  const std::vector<int> kept = odometry_detail::voxelDownsampleIndices(
+      cloud, params.keyframe_voxel_size_m, in_range);
+  auto voxels = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+  voxels->header = cloud.header;
+  voxels->points.reserve(kept.size());
+  for (const int i : kept)
+    voxels->points.push_back(cloud.points[i]);
+  voxels->width = static_cast<std::uint32_t>(voxels->points.size());
+  voxels->height = 1;
+  voxels->is_dense = true;
+  kf->cloud = voxels;
+
+  insertIntoMap(cloud, result.T_world_lidar);
   keyframe = kf;
   T_world_keyframe = result.T_world_lidar;
   return kf;
@@ -325,35 +337,14 @@ void
 Odometry::Impl::insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud,
                               const Pose3d& T_world_lidar)
 {
-  insertMapPoints(odometry_detail::toPoints(cloud, mapSample(cloud)), T_world_lidar);
-}
-
-void
-Odometry::Impl::insertMapPoints(const Points3f& points_lidar, const Pose3d& T_world_lidar)
-{
+  const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
   const Eigen::Isometry3f T = T_world_lidar.cast<float>();
   Points3f points_world;
-  points_world.reserve(points_lidar.size());
-  for (const Eigen::Vector3f& p : points_lidar)
-    points_world.push_back(T * p);
+  for (const int i : odometry_detail::voxelDownsampleIndices(
+           cloud, params.dense.map_voxel_size_m / 4.0, in_range))
+    points_world.push_back(T * cloud.points[i].getVector3fMap());
   map.insert(points_world, T.translation());
   ++map_scans;
-}
-
-pcl::Indices
-Odometry::Impl::keyframeSample(const pcl::PointCloud<pcl::PointXYZI>& cloud) const
-{
-  const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
-  return odometry_detail::voxelDownsampleIndices(
-      cloud, params.keyframe_voxel_size_m, in_range);
-}
-
-pcl::Indices
-Odometry::Impl::mapSample(const pcl::PointCloud<pcl::PointXYZI>& cloud) const
-{
-  const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
-  return odometry_detail::voxelDownsampleIndices(
-      cloud, params.dense.map_voxel_size_m / 4.0, in_range);
 }
 
 // ---------------------------------------------------------------------------

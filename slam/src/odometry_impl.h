@@ -197,13 +197,6 @@ struct Odometry::Impl
   void commitPose(const OdometryFrameResult& result);
   OdometryFrameResult
   skip(double timestamp_s, std::size_t frame_index, const std::string& reason);
-  /// What a key-frame and the local map keep of a scan: one point per voxel of each,
-  /// compensated.
-  struct KeptPoints
-  {
-    pcl::PointCloud<pcl::PointXYZI>::Ptr keyframe_voxels; ///< keyframe_voxel_size_m
-    Points3f map_points; ///< dense.map_voxel_size_m / 4, in the lidar frame
-  };
   /// Everything the steps of one frame's tracking share.
   struct Frame
   {
@@ -221,7 +214,7 @@ struct Odometry::Impl
     std::shared_ptr<RasterFeatureSet> features;
     std::vector<int> source_indices; ///< the dense step's source points ...
     Points3f source;                 ///< ... compensated
-    std::optional<KeptPoints> kept;  ///< see keptPoints
+    pcl::PointCloud<pcl::PointXYZI>::ConstPtr kept_cloud; ///< see keptCloud
   };
   /// The outcome of trackFeatures.
   struct FeatureTrack
@@ -310,10 +303,9 @@ struct Odometry::Impl
   bool canGuide(const Frame& frame) const;
   /// Step 6: the key-frame decision, the young map, the previous-frame reference.
   void decideKeyFrame(Frame& frame, OdometryFrameResult& result);
-  /// The points a key-frame and the local map keep of the frame, made once and only
-  /// when one of them keeps it. The voxels' points are chosen on the scan as it came,
-  /// and only they are compensated: a few tens of thousands of points, not the scan.
-  const KeptPoints& keptPoints(Frame& frame, OdometryFrameResult& result) const;
+  /// The whole compensated scan, made once and only when a key-frame or the map keeps it.
+  const pcl::PointCloud<pcl::PointXYZI>& keptCloud(Frame& frame,
+                                                   OdometryFrameResult& result) const;
   /// Step 5b of track: where the estimated motion differs from the previous frame's (a
   /// stop, a start, a turn), the dense step's source points are compensated with it and
   /// refined once more from the estimate. When that is kept, \a xi_sweep becomes the
@@ -344,15 +336,9 @@ struct Odometry::Impl
              std::string& source) const;
   KeyFrame::Ptr makeKeyFrame(const OdometryFrameResult& result,
                              const RasterFeatureSet& features,
-                             const KeptPoints& kept);
-  /// The indices keyframe_voxel_size_m and dense.map_voxel_size_m / 4 keep of \a cloud.
-  pcl::Indices keyframeSample(const pcl::PointCloud<pcl::PointXYZI>& cloud) const;
-  pcl::Indices mapSample(const pcl::PointCloud<pcl::PointXYZI>& cloud) const;
-  /// \a cloud into the local map, sampled (mapSample) ...
+                             const pcl::PointCloud<pcl::PointXYZI>& cloud);
   void insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud,
                      const Pose3d& T_world_lidar);
-  /// ... or points sampled already (lidar frame).
-  void insertMapPoints(const Points3f& points_lidar, const Pose3d& T_world_lidar);
 };
 
 } // namespace rast

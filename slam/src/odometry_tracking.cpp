@@ -63,8 +63,8 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   }
   // 0b. Motion compensation (deskew.h) with the previous frame's motion. Every step
   //     below uses compensated points: the non-ground points (raster, features) and the
-  //     dense step's source points right away, and what a key-frame or the local map
-  //     keeps only when one keeps it (keptPoints).
+  //     dense step's source points right away, the whole scan only when a key-frame or
+  //     the local map keeps it (keptCloud).
   pcl::StopWatch watch;
   frame.dt = frameInterval(result.timestamp_s);
   if (auto times = sweepTimes(frame.input, point_times, frame.dt, result.deskew_times))
@@ -88,7 +88,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     result.status = TrackingStatus::kFirstFrame;
     result.message = "first frame: key-frame 0";
     watch.reset();
-    result.keyframe = makeKeyFrame(result, *frame.features, keptPoints(frame, result));
+    result.keyframe = makeKeyFrame(result, *frame.features, frame.input);
     result.reference_keyframe = result.keyframe->id;
     result.timings.keyframe_ms = watch.getTime();
     result.timings.total_ms = frame.watch.getTime();
@@ -433,32 +433,20 @@ Odometry::Impl::checkWeakFeatures(const Frame& frame,
   }
 }
 
-const Odometry::Impl::KeptPoints&
-Odometry::Impl::keptPoints(Frame& frame, OdometryFrameResult& result) const
+const pcl::PointCloud<pcl::PointXYZI>&
+Odometry::Impl::keptCloud(Frame& frame, OdometryFrameResult& result) const
 {
-  if (!frame.kept) {
-    // Each voxel's point is chosen by where it was scanned and then compensated:
-    // the same sampling density, and a point moves by at most the sweep's motion.
-    const pcl::Indices keyframe_indices = keyframeSample(frame.input);
-    const pcl::Indices map_indices = mapSample(frame.input);
-    KeptPoints kept;
+  // The whole compensated scan, made once and only when a key-frame or the map keeps it.
+  if (!frame.kept_cloud) {
     const pcl::StopWatch t0;
-    if (frame.xi_sweep) {
-      kept.keyframe_voxels =
-          deskewIndices(frame.input, *frame.times, keyframe_indices, *frame.xi_sweep);
-      kept.map_points = toPoints(
-          *deskewIndices(frame.input, *frame.times, map_indices, *frame.xi_sweep));
-      result.timings.deskew_ms += t0.getTime();
-    } else {
-      kept.keyframe_voxels = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>(
-          frame.input, keyframe_indices);
-      kept.map_points = toPoints(frame.input, map_indices);
-    }
-    kept.keyframe_voxels->header = frame.input.header;
-    kept.keyframe_voxels->is_dense = true;
-    frame.kept = std::move(kept);
+    frame.kept_cloud =
+        frame.xi_sweep
+            ? deskewCloud(
+                  frame.input, frame.times->all(), *frame.xi_sweep, params.deskew.bins)
+            : frame.input_ptr;
+    result.timings.deskew_ms += t0.getTime();
   }
-  return *frame.kept;
+  return *frame.kept_cloud;
 }
 
 void
@@ -490,7 +478,7 @@ Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
   const bool weak = result.num_inliers < params.keyframe_min_inliers && useful;
   const bool reanchor = frames_without_tracking + 1 >= kReanchorAfterFrames && useful;
   if ((tracked && (paper_rule || far || weak)) || reanchor) {
-    result.keyframe = makeKeyFrame(result, *frame.features, keptPoints(frame, result));
+    result.keyframe = makeKeyFrame(result, *frame.features, keptCloud(frame, result));
     result.reference_keyframe = result.keyframe->id;
     result.T_keyframe_lidar = Pose3d::Identity();
     if (!tracked) {
@@ -500,7 +488,7 @@ Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
   }
   if (!result.keyframe && tracked && result.refined &&
       map_scans < params.dense.young_map_scans)
-    insertMapPoints(keptPoints(frame, result).map_points, result.T_world_lidar);
+    insertIntoMap(keptCloud(frame, result), result.T_world_lidar);
   result.timings.keyframe_ms = watch.getTime();
   if (tracked && !result.keyframe) {
     last_features = frame.features;
