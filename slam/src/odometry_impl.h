@@ -189,6 +189,9 @@ struct Odometry::Impl
   /// velocity carried over a frame or two (a constant-velocity frame in a tunnel)
   /// still bounds the motion, with a gate that widens with its age (priorGate).
   int velocity_age_frames = -1;
+  /// The last frame's pose came from the prior's fit over strong features
+  /// (check_strong_features); the next frame's features are not checked again.
+  bool prior_overruled_features = false;
 
   Pose3d predict(double timestamp_s) const;
   /// Seconds since the last frame (timestamps scaled by deskew.seconds_per_timestamp).
@@ -215,6 +218,8 @@ struct Odometry::Impl
     std::vector<int> source_indices; ///< the dense step's source points ...
     Points3f source;                 ///< ... compensated
     pcl::PointCloud<pcl::PointXYZI>::ConstPtr kept_cloud; ///< see keptCloud
+    /// The prior's fit overruled strong features in the frame before (trackDense).
+    bool prior_overruled_before = false;
   };
   /// The outcome of trackFeatures.
   struct FeatureTrack
@@ -244,7 +249,8 @@ struct Odometry::Impl
   /// Step 5 with features: dense refinement from their estimate, anchored to them
   /// (strong, unless far from the prior where the scan is degenerate) or to the prior
   /// (weak), and the two cross-checks.
-  void trackDense(const Frame& frame,
+  /// Returns whether the prior's fit overruled strong features (check_strong_features).
+  bool trackDense(const Frame& frame,
                   const FeatureTrack& track,
                   OdometryFrameResult& result) const;
   /// The gates of nearPrior for \a frame: OdometryParams::prior_gate_m / _deg, shrunk

@@ -12,6 +12,7 @@
 #include <cmath>
 #include <pcl/common/io.h>
 #include <pcl/registration/hamming_matching.h>
+#include <utility>
 
 namespace pcl {
 namespace rast {
@@ -45,6 +46,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
                       OdometryFrameResult result)
 {
   Frame frame(input_ptr);
+  frame.prior_overruled_before = std::exchange(prior_overruled_features, false);
   frame.T_world_prior = predict(result.timestamp_s);
   result.T_world_lidar = frame.T_world_prior;
   result.reference_keyframe = keyframe ? keyframe->id : 0;
@@ -104,7 +106,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   if (params.registration.refine || !feature_track.ok)
     makeDenseSource(frame, result);
   if (feature_track.ok)
-    trackDense(frame, feature_track, result);
+    prior_overruled_features = trackDense(frame, feature_track, result);
   else
     searchHypotheses(frame, feature_track, result);
   result.timings.refine_ms = watch.getTime();
@@ -274,7 +276,7 @@ Odometry::Impl::makeDenseSource(Frame& frame, OdometryFrameResult& result) const
   }
 }
 
-void
+bool
 Odometry::Impl::trackDense(const Frame& frame,
                            const FeatureTrack& track,
                            OdometryFrameResult& result) const
@@ -285,7 +287,7 @@ Odometry::Impl::trackDense(const Frame& frame,
   result.message =
       "features: " + std::to_string(inliers) + " inliers with " + track.reference;
   if (!params.registration.refine)
-    return;
+    return false;
   // Along the directions the scan does not constrain (a corridor's axis, an open field's
   // x, y and yaw) strong features set the pose; weak ones (a few posts of a guard rail,
   // a passing car) do not, the constant-velocity prior does.
@@ -308,14 +310,41 @@ Odometry::Impl::trackDense(const Frame& frame,
     result.message +=
         "; far from the prior along a direction the scan does not constrain";
   }
-  if (!strong)
+  bool prior_won = false;
+  if (strong && params.check_strong_features && !frame.prior_overruled_before &&
+      velocity_tracked && dense.success && priorGate(frame).dynamics &&
+      !nearPrior(frame, dense.T_world_lidar)) {
+    // Strong features, refined, beyond what the vehicle can deviate from its tracked
+    // velocity in one frame: periodic structure (a guard rail's posts every few metres)
+    // aliases dozens of keypoints by part of a period, and the dense step stays in that
+    // minimum. The prior's fit wins when it ends elsewhere and the scan cannot tell
+    // the two apart: nearly as many pairs, an RMS residual within indistinct_residual_m
+    // (a real manoeuvre the prior missed leaves the prior's fit clearly worse). Never two
+    // frames running: a prior that won once may itself be the stale one (on a highway
+    // the next frames' velocity would come from it), so the next features stand.
+    const DenseResult from_prior = registerToMap(
+        frame.source, map, frame.T_world_prior, params.dense, priorAnchored(frame));
+    if (from_prior.success &&
+        from_prior.num_correspondences >= kPriorPairsShare * dense.num_correspondences &&
+        moved(dense.T_world_lidar, from_prior.T_world_lidar, 0.02, 0.1) &&
+        from_prior.rmse_m < dense.rmse_m + params.indistinct_residual_m) {
+      strong = false;
+      prior_won = true;
+      dense = from_prior;
+      result.degraded = true;
+      result.message +=
+          "; beyond the vehicle's motion from the prior, which the scan fits "
+          "as well: dense from the prior";
+    }
+  }
+  if (!strong && !prior_won)
     checkWeakFeatures(frame, track, dense, result);
   keepDenseStats(dense, result);
   if (!dense.success) {
     result.degraded = true;
     result.message +=
         "; refinement failed, feature estimate kept (" + dense.message + ")";
-    return;
+    return false;
   }
   result.T_world_lidar = dense.T_world_lidar;
   result.refined = true;
@@ -336,6 +365,7 @@ Odometry::Impl::trackDense(const Frame& frame,
     result.degraded = true;
     result.message += strong ? " (from the features)" : " (from the prior)";
   }
+  return prior_won;
 }
 
 Odometry::Impl::PriorGate

@@ -291,6 +291,13 @@ struct OdometryParams
   /// far more).
   double prior_gate_accel_mps2 = 30.0;
   double prior_gate_angular_accel_dps2 = 150.0; ///< see prior_gate_accel_mps2
+  /// Strong features whose refined pose lies beyond those shrunk gates (a motion the
+  /// vehicle cannot make) are checked against dense ICP from the prior, which wins
+  /// where it ends elsewhere and the scan cannot tell the two apart (nearly as many
+  /// pairs, RMS residuals within indistinct_residual_m): a guard rail's posts alias
+  /// dozens of keypoints by part of a post. Not in two frames running. false: strong
+  /// features stand (doc/odometry.md).
+  bool check_strong_features = true;
   /// Where the gates shrink (a tracked velocity at a high frame rate), a dense step
   /// anchored to the prior is also pulled toward it with this fraction of its total
   /// weight: a direction the scan constrains only weakly (a tunnel's axis, 0.3-1 % of
