@@ -188,10 +188,11 @@ TEST(SessionMerge, AnOverlappingDriveIsJoinedAndOptimizedWithTheSession)
     ASSERT_EQ(static_cast<bool>(lazy_loaded.keyframes[k]->cloud),
               static_cast<bool>(loaded.keyframes[k]->cloud))
         << "key-frame " << k;
-    if (loaded.keyframes[k]->cloud)
+    if (loaded.keyframes[k]->cloud) {
       EXPECT_EQ(lazy_loaded.keyframes[k]->cloud->size(),
                 loaded.keyframes[k]->cloud->size())
           << "key-frame " << k;
+    }
   }
 }
 
