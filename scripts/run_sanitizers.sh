@@ -23,14 +23,16 @@ jobs="$(nproc)"
 # Ninja where it is installed (scripts/setup_debian.sh installs it): it keeps both cores
 # busy to the end of the build, where make waits target by target (the ASan + UBSan
 # build: 488 s against 517 s). A build folder keeps the generator it was made with.
+generator=()
+command -v ninja > /dev/null && generator=(-G Ninja)
+# The simulator (the test bed) is built uninstrumented and optimized in both builds.
+simulator_flags="-fno-sanitize=all;-O2"
 # --as-needed: Debian's gcc links with it by default, but not when any -fsanitize is
 # given (its link spec holds %{!fsanitize=*:--as-needed}). Without it every library
 # recorded every PCL, VTK and OpenCV library it was linked with, a test program loaded
 # 274 shared libraries instead of 40, and its start took 0.38 s instead of 0.10 s
 # under ASan, of which the dynamic loader's symbol lookups were most: for each of the
 # suite's 406 test starts and every tool a test runs.
-generator=()
-command -v ninja > /dev/null && generator=(-G Ninja)
 configure() { # build_dir flags [cmake options]
   local gen=("${generator[@]}")
   [ -f "$1/CMakeCache.txt" ] && gen=()
@@ -52,7 +54,7 @@ for kind in "${kinds[@]}"; do
     # (__SANITIZE_ADDRESS__) for its hand-made one.
     configure "$build" "-fsanitize=address,undefined -fno-sanitize-recover=undefined" \
       -DPCL_RAST_TEST_EXTRA_FLAGS=-fno-sanitize=undefined \
-      "-DPCL_RAST_SIMULATOR_FLAGS=-fno-sanitize=all;-O2;-DEIGEN_MALLOC_ALREADY_ALIGNED=0"
+      "-DPCL_RAST_SIMULATOR_FLAGS=$simulator_flags;-DEIGEN_MALLOC_ALREADY_ALIGNED=0"
     # malloc_context_size=10: shorter allocation stacks, a faster suite, same findings.
     # intercept_tls_get_addr=0: with Debian 12's glibc, LeakSanitizer's record of the
     # dynamic TLS blocks of pcl_rast_localize held a bogus range ("DTLS 27 at
@@ -104,7 +106,7 @@ for kind in "${kinds[@]}"; do
   tsan)
     build="$root/build-tsan"
     configure "$build" "-fsanitize=thread" -DPCL_RAST_TESTS_BUILD_TOOLS=OFF \
-      "-DPCL_RAST_SIMULATOR_FLAGS=-fno-sanitize=all;-O2"
+      "-DPCL_RAST_SIMULATOR_FLAGS=$simulator_flags"
     # The tests below run one program, pcl_rast_slam: the other tools are not built.
     targets=(slam_test_rast_slam slam_test_slam_tool slam_test_local_mapping pcl_rast_slam)
     # The build runs the tests to list them (gtest_discover_tests): same options.
