@@ -143,6 +143,10 @@ run(int argc, char** argv)
                   " failed placements in a row (off the map), try one every N frames "
                   "(1: every frame)",
               &params.placement_every);
+  args.addInt("place-lag",
+              "those attempts run in the background and are taken N frames later, moved "
+              "there by the odometry (0: at once, on the main thread)",
+              &params.background_placement_lag);
   // Placement thresholds (SessionLocalizerParams::verification): fewer accept more
   // placements, between passes that share less, at the risk of a wrong one.
   const rast::LoopDetectorParams loop_defaults;
@@ -377,14 +381,16 @@ run(int argc, char** argv)
   summary["stop_signal"] = stopRequested() ? json(stopSignalName()) : json(nullptr);
   summary["deskew"] = {{"mode", rast::toString(localizer_params.odometry.deskew.mode)},
                        {"reason", deskew_reason}};
-  summary["placement"] = {{"min_score", place_min_score},
-                          {"min_initial_inliers", place_min_initial},
-                          {"min_inliers", place_min_inliers},
-                          {"track_on_map", params.track_on_map},
-                          {"backoff_after", params.placement_backoff_after},
-                          {"every", params.placement_every},
-                          {"tentative_by_alignment", params.confirm_tentative_by_alignment},
-                          {"tried", placements_tried}};
+  summary["placement"] = {
+      {"min_score", place_min_score},
+      {"min_initial_inliers", place_min_initial},
+      {"min_inliers", place_min_inliers},
+      {"track_on_map", params.track_on_map},
+      {"backoff_after", params.placement_backoff_after},
+      {"every", params.placement_every},
+      {"background_lag", params.background_placement_lag},
+      {"tentative_by_alignment", params.confirm_tentative_by_alignment},
+      {"tried", placements_tried}};
   summary["render_backend"] = render.backend;
   summary["error"] = nullptr;
   outputs.publish(summary);

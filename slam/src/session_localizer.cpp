@@ -2,21 +2,19 @@
 /// \brief SessionLocalizer: a scan placed on a session's map by appearance retrieval
 /// and loop verification (session_localizer.h).
 
-#include <pcl/slam/session_localizer.h>
-
-#include <pcl/slam/deskew.h>
-#include <pcl/slam/loop_detector.h>
-
-#include <pcl/common/time.h>
-
 #include "stage_util.h"
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <deque>
+#include <future>
 #include <map>
 #include <optional>
-#include <cstdio>
+#include <pcl/common/time.h>
+#include <pcl/slam/deskew.h>
+#include <pcl/slam/loop_detector.h>
+#include <pcl/slam/session_localizer.h>
 #include <stdexcept>
 
 namespace pcl {
@@ -286,6 +284,13 @@ MapLocalizationParams::isValid(std::string* why) const
     return fail("placement_backoff_after must be >= 0 and placement_every >= 1, got " +
                 std::to_string(placement_backoff_after) + " and " +
                 std::to_string(placement_every));
+  if (background_placement_lag < 0 ||
+      (tentative_window_frames > 0 && background_placement_lag > tentative_window_frames))
+    return fail(
+        "background_placement_lag must be >= 0 and at most tentative_window_frames, "
+        "got " +
+        std::to_string(background_placement_lag) + " (tentative_window_frames " +
+        std::to_string(tentative_window_frames) + ")");
   return true;
 }
 
@@ -377,6 +382,27 @@ struct MapLocalization::Impl
   std::map<KeyFrameId, std::shared_ptr<const PointToPlaneTarget>> targets;
   std::deque<KeyFrameId> target_order;
   static constexpr std::size_t kMaxTargets = 32;
+  /// A placement attempt running in the background (background_placement_lag), with
+  /// what taking it later needs. Declared last: it is waited for before the rest goes.
+  struct Pending
+  {
+    std::future<Placement> result;
+    Pose3d T_odom_lidar = Pose3d::Identity(); ///< the odometry's pose of its scan
+    int odometry_run = 0;
+    std::size_t frame = 0; ///< frame count of its scan
+  };
+  std::optional<Pending> pending;
+
+  /// Whether this frame's attempt, when due, runs in the background: backed off, with
+  /// no tentative placement waiting for a second one, and room for one at a time.
+  bool placeInBackground() const
+  {
+    const int lag = params.background_placement_lag;
+    return lag > 0 && params.placement_every > lag &&
+           params.placement_backoff_after > 0 &&
+           failed_placements >= params.placement_backoff_after && !recentWithinWindow() &&
+           !pending;
+  }
 
   /// The motion of the last two frames the map confirmed, over \a dt seconds (none
   /// without such a motion or an interval).
@@ -639,6 +665,7 @@ struct MapLocalization::Impl
         f.message = text + f.message;
       }
     }
+    pending.reset();     // an attempt in the background has nothing to add (waits for it)
     recent_rmse.clear(); // residuals from here on are of this placement's place
     confirm(placement.T_world_lidar, dt);
   }
@@ -740,6 +767,7 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
       f.rmse_m = a->rmse_m;
       f.message = "aligned to key-frame " + std::to_string(a->keyframe);
       m.failed_placements = 0;
+      m.pending.reset(); // a background attempt has nothing to add (waits for it)
       m.confirm(a->T_world_lidar, dt);
       f.time_ms = watch.getTime();
       return f;
@@ -751,6 +779,42 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   // the compensated scan.
   if (!odo)
     track();
+  // A placement started in the background background_placement_lag frames ago is
+  // taken now: recorded for its own scan, as an attempt at once would have been, and
+  // moved to this one by the odometry.
+  std::string collected;
+  if (m.pending && m.frames - m.pending->frame >=
+                       static_cast<std::size_t>(m.params.background_placement_lag)) {
+    Impl::Pending job = std::move(*m.pending);
+    m.pending.reset();
+    Placement p = job.result.get();
+    const std::string from = "in the background from the scan " +
+                             std::to_string(m.frames - job.frame) + " frames before: ";
+    if (job.odometry_run != m.odometry_run) {
+      collected = from + "dropped, the odometry started afresh since";
+    } else {
+      const Pose3d T_world_found = p.T_world_lidar;
+      p.T_world_lidar = normalizedPose(T_world_found *
+                                       (job.T_odom_lidar.inverse() * odo->T_world_lidar));
+      std::string agreement;
+      if (p.tentative && m.params.tentative_window_frames > 0 &&
+          m.agreesWithRecent(p, odo->T_world_lidar, agreement)) {
+        p.success = true;
+        p.message = agreement + p.message;
+      }
+      p.message = from + p.message;
+      if (p.success || p.tentative)
+        m.recent_placement = Impl::Recent{
+            T_world_found, job.T_odom_lidar, job.odometry_run, job.frame, !p.success};
+      m.failed_placements = p.success ? 0 : m.failed_placements + 1;
+      if (p.success) {
+        m.takePlacement(f, p, predicted, dt);
+        f.time_ms = watch.getTime();
+        return f;
+      }
+      collected = p.message;
+    }
+  }
   // A recent tentative placement that this scan's alignment to the map confirms.
   std::string how;
   if (const std::optional<Impl::Alignment> a =
@@ -773,9 +837,33 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   if (!odo->features || odo->features->empty() || !scan || scan->empty()) {
     placement.message = "no features: " + odo->message;
   } else if (!m.placementDue()) {
-    placement.message = "not tried: " + std::to_string(m.failed_placements) +
-                        " failed placements in a row, one every " +
-                        std::to_string(m.params.placement_every) + " frames";
+    placement.message = !collected.empty()
+                            ? collected
+                            : "not tried: " + std::to_string(m.failed_placements) +
+                                  " failed placements in a row, one every " +
+                                  std::to_string(m.params.placement_every) + " frames";
+  } else if (m.placeInBackground()) {
+    // The odometry goes on with the next frames meanwhile (the query is a copy).
+    f.placement_tried = true;
+    KeyFrame query;
+    const bool own_features = scan != raw_scan && !odo->deskew_applied;
+    if (!own_features)
+      query.features = *odo->features;
+    query.cloud = scan;
+    const SessionLocalizer& localizer = m.localizer;
+    m.pending =
+        Impl::Pending{std::async(std::launch::async,
+                                 [&localizer, own_features, query = std::move(query)] {
+                                   return own_features ? localizer.place(query.cloud)
+                                                       : localizer.place(query);
+                                 }),
+                      odo->T_world_lidar,
+                      m.odometry_run,
+                      m.frames};
+    m.last_attempt_frame = m.frames;
+    placement.message = "started in the background, taken " +
+                        std::to_string(m.params.background_placement_lag) +
+                        " frames later";
   } else {
     f.placement_tried = true;
     if (scan != raw_scan && !odo->deskew_applied) {

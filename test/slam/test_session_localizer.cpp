@@ -325,19 +325,33 @@ TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
 {
   const MappedLoop m = mapLoop();
   const auto elsewhere = pathSimulator(PathType::kStraight, 18, 0.0, 9);
-  for (const int every : {1, 3}) {
+  // every 1: each frame tries at once (the lag needs placement_every above it); every
+  // 3: backed off, at once (lag 0) or in the background and taken a frame later.
+  for (const auto& [every, lag] : {std::pair{1, 1}, std::pair{3, 0}, std::pair{3, 1}}) {
     MapLocalizationParams params;
     params.placement_backoff_after = 6;
     params.placement_every = every;
+    params.background_placement_lag = lag;
+    const bool background = every > lag && lag > 0;
     MapLocalization localization(*m.localizer, m.odometry, params);
-    int tried_off = 0, first_localized = -1;
+    int tried_off = 0, first_localized = -1, collected = 0;
     for (std::size_t i = 0; i < 18; ++i) {
       const LocalizationFrame f =
           localization.addScan(simulateFrame(*elsewhere, i), elsewhere->timestamp(i), i);
       EXPECT_NE(f.status, LocalizationStatus::kLocalized) << "frame " << i << ": " << f.message;
       tried_off += f.placement_tried ? 1 : 0;
+      if (f.placement_tried && i >= 6) {
+        EXPECT_EQ(f.message.find("started in the background") != std::string::npos,
+                  background)
+            << f.message;
+      }
       if (!f.placement_tried) {
-        EXPECT_NE(f.message.find("not tried: "), std::string::npos) << f.message;
+        const bool taken =
+            f.message.find("in the background from the scan 1 frames before: "
+                           "no candidate verified") != std::string::npos;
+        collected += taken ? 1 : 0;
+        EXPECT_TRUE(taken || f.message.find("not tried: ") != std::string::npos)
+            << f.message;
       }
     }
     for (std::size_t j = 0; j < 8; ++j) {
@@ -347,18 +361,31 @@ TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
           simulateFrame(*m.sim, i), elsewhere->timestamp(17) + 0.1 * (j + 1), 18 + j);
       if (f.status != LocalizationStatus::kLocalized)
         continue;
-      if (first_localized < 0)
+      if (first_localized < 0) {
         first_localized = static_cast<int>(j);
+        EXPECT_EQ(f.message.find("in the background from the scan 1 frames before") !=
+                      std::string::npos,
+                  background)
+            << f.message;
+      }
       EXPECT_LT((f.T_world_lidar.translation() - m.truth(i).translation()).norm(), 0.5)
           << "frame " << i << ": " << f.message;
     }
-    std::printf("simulated: every %d: %d of 18 off-map frames tried a placement; the map's "
-                "first localized frame %d\n",
-                every, tried_off, first_localized);
-    // 6 failures, then frames 9, 12, 15 and 18 of the run.
+    std::printf(
+        "simulated: every %d, lag %d: %d of 18 off-map frames tried a placement (%d "
+        "taken from the background); the map's first localized frame %d\n",
+        every,
+        lag,
+        tried_off,
+        collected,
+        first_localized);
+    // 6 failures, then frames 9, 12, 15 and 18 of the run; the last one's result is
+    // taken on the map.
     EXPECT_EQ(tried_off, every == 1 ? 18 : 10);
+    EXPECT_EQ(collected, background ? 3 : 0);
     ASSERT_GE(first_localized, 0) << "never localized on the map";
-    EXPECT_LT(first_localized, every) << "the first placement tried on the map places it";
+    // The first placement tried on the map places it: at once, or a frame later.
+    EXPECT_LT(first_localized, every + (background ? lag : 0));
   }
 }
 
@@ -401,6 +428,12 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
                 "placement_backoff_after must be >= 0 and placement_every >= 1, got 20 and 0");
   expectInvalid(mapParams([](auto& p) { p.placement_backoff_after = -1; }),
                 "placement_backoff_after must be >= 0");
+  expectInvalid(
+      mapParams([](auto& p) { p.background_placement_lag = 4; }),
+      "background_placement_lag must be >= 0 and at most tentative_window_frames, "
+      "got 4 (tentative_window_frames 3)");
+  expectInvalid(mapParams([](auto& p) { p.background_placement_lag = -1; }),
+                "background_placement_lag must be >= 0");
   SessionLocalizerParams tentative_two;
   tentative_two.tentative_min_inliers = 2;
   expectInvalid(tentative_two, "tentative_min_inliers must be 0 or >= 3, got 2");
