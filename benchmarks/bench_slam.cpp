@@ -144,8 +144,10 @@ BM_AppearanceRetrieval(benchmark::State& state)
   for (auto _ : state) {
     const auto ranking =
         index.database->rankByAppearance(index.query, Pose3d::Identity());
-    if (ranking.empty() || ranking.front().first / kPasses != kQueryScan)
+    if (ranking.empty() || ranking.front().first / kPasses != kQueryScan) {
       state.SkipWithError("no pass of the query's place is ranked first");
+      break;
+    }
     benchmark::DoNotOptimize(ranking.data());
   }
   state.counters["indexed_features"] = static_cast<double>(index.indexed_features);

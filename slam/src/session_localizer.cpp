@@ -788,20 +788,18 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
     Impl::Pending job = std::move(*m.pending);
     m.pending.reset();
     Placement p = job.result.get();
-    const std::string from = "in the background from the scan " +
-                             std::to_string(m.frames - job.frame) + " frames before: ";
+    const std::size_t ago = m.frames - job.frame;
+    const std::string from = "in the background from the scan " + std::to_string(ago) +
+                             (ago == 1 ? " frame" : " frames") + " before: ";
+    // Defensive: the odometry starts afresh only after a jump or a localized frame, and
+    // both drop the attempt first. An attempt starts with no tentative placement in
+    // the window (placeInBackground), so there is none to agree with here either.
     if (job.odometry_run != m.odometry_run) {
       collected = from + "dropped, the odometry started afresh since";
     } else {
       const Pose3d T_world_found = p.T_world_lidar;
       p.T_world_lidar = normalizedPose(T_world_found *
                                        (job.T_odom_lidar.inverse() * odo->T_world_lidar));
-      std::string agreement;
-      if (p.tentative && m.params.tentative_window_frames > 0 &&
-          m.agreesWithRecent(p, odo->T_world_lidar, agreement)) {
-        p.success = true;
-        p.message = agreement + p.message;
-      }
       p.message = from + p.message;
       if (p.success || p.tentative)
         m.recent_placement = Impl::Recent{
@@ -834,6 +832,7 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
     return f;
   }
   Placement placement;
+  bool started_in_background = false;
   if (!odo->features || odo->features->empty() || !scan || scan->empty()) {
     placement.message = "no features: " + odo->message;
   } else if (!m.placementDue()) {
@@ -861,9 +860,10 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
                       m.odometry_run,
                       m.frames};
     m.last_attempt_frame = m.frames;
-    placement.message = "started in the background, taken " +
-                        std::to_string(m.params.background_placement_lag) +
-                        " frames later";
+    const int lag = m.params.background_placement_lag;
+    placement.message = "started in the background, taken " + std::to_string(lag) +
+                        (lag == 1 ? " frame" : " frames") + " later";
+    started_in_background = true;
   } else {
     f.placement_tried = true;
     if (scan != raw_scan && !odo->deskew_applied) {
@@ -886,7 +886,7 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   if (placement.success || placement.tentative)
     m.recent_placement = Impl::Recent{placement.T_world_lidar, odo->T_world_lidar,
                                       m.odometry_run, m.frames, !placement.success};
-  if (f.placement_tried)
+  if (f.placement_tried && !started_in_background) // that one counts when it is taken
     m.failed_placements = placement.success ? 0 : m.failed_placements + 1;
   if (placement.success)
     m.takePlacement(f, placement, predicted, dt);

@@ -206,15 +206,18 @@ struct MapLocalizationParams
   int placement_backoff_after = 20;
   int placement_every = 4; ///< frames between two attempts while backed off (>= 1)
   /// While backed off, an attempt runs on a thread of its own and is taken this many
-  /// frames later (0: at once, on the caller's thread). Off the map the attempts cost
-  /// 20-35 ms each while the odometry tracks a frame in about 13 ms (simulated HDL-64):
-  /// on the second core they cost the frames nothing. The placement, found for its own
-  /// scan, is moved to the frame that takes it by the odometry in between; a tentative
-  /// one waits for agreement as if it had been found at once, so the lag must not
-  /// exceed tentative_window_frames. Taken at a fixed lag, never when it happens to
-  /// finish: the output does not depend on the machine's speed. Cold starts, the frames
-  /// after a jump, and every attempt when placement_every is at most the lag (one
-  /// attempt at a time) run at once.
+  /// frames later (0: at once, on the caller's thread). Off the map an attempt costs
+  /// 20-35 ms and the odometry tracks a frame in about 13 ms (simulated HDL-64): most
+  /// of the attempt overlaps the next frames, and the frame that takes it waits for the
+  /// rest. The placement, found for its own scan, is moved to the frame that takes it
+  /// by the odometry in between. A tentative one is recorded for its own scan and waits
+  /// for agreement from there, so the lag must not exceed tentative_window_frames; with
+  /// a lag of 1 the next scan confirms it just as it would an attempt made at once,
+  /// with more, the frames before the lag cannot. Taken at a fixed lag, never when it
+  /// happens to finish: the output does not depend on the machine's speed. A frame
+  /// localized meanwhile waits for the attempt and drops it (an exception it threw
+  /// too). Cold starts, the frames after a jump, and every attempt when
+  /// placement_every is at most the lag (one attempt at a time) run at once.
   int background_placement_lag = 1;
   /// \brief Whether all values are usable; on failure \a why (if not null) says which.
   bool isValid(std::string* why = nullptr) const;
@@ -267,7 +270,9 @@ public:
   /// (before the first addScan). \throws std::logic_error after it.
   void setInitialPose(const Pose3d& T_world_lidar);
 
-  /// \brief Localize the next scan.
+  /// \brief Localize the next scan. The scan is not copied: it must not change while
+  /// a placement of it runs in the background (MapLocalizationParams::
+  /// background_placement_lag), until the addScan that takes or drops it returns.
   LocalizationFrame addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
                             double timestamp_s,
                             std::size_t frame_index);
