@@ -8,13 +8,15 @@
 ///    items_per_second is the throughput in frames per second.
 
 #include <benchmark/benchmark.h>
-#include <cmath>
-#include <memory>
-#include <pcl/simulation/lidar_simulator.h>
+
 #include <pcl/slam/bundle_adjustment.h>
 #include <pcl/slam/keyframe_database.h>
 #include <pcl/slam/odometry.h>
+#include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/rast_slam.h>
+
+#include <cmath>
+#include <memory>
 #include <random>
 #include <string>
 #include <vector>

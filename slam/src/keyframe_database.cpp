@@ -5,10 +5,11 @@
 
 #include "stage_util.h"
 
+#include <pcl/slam/keyframe_database.h>
+
 #include <algorithm>
 #include <cmath>
 #include <mutex>
-#include <pcl/slam/keyframe_database.h>
 #include <stdexcept>
 #include <tuple>
 

@@ -2,19 +2,22 @@
 /// \brief SessionLocalizer: a scan placed on a session's map by appearance retrieval
 /// and loop verification (session_localizer.h).
 
+#include <pcl/slam/session_localizer.h>
+
+#include <pcl/slam/deskew.h>
+#include <pcl/slam/loop_detector.h>
+
+#include <pcl/common/time.h>
+
 #include "stage_util.h"
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
 #include <deque>
 #include <future>
 #include <map>
 #include <optional>
-#include <pcl/common/time.h>
-#include <pcl/slam/deskew.h>
-#include <pcl/slam/loop_detector.h>
-#include <pcl/slam/session_localizer.h>
+#include <cstdio>
 #include <stdexcept>
 
 namespace pcl {
@@ -388,7 +391,6 @@ struct MapLocalization::Impl
   {
     std::future<Placement> result;
     Pose3d T_odom_lidar = Pose3d::Identity(); ///< the odometry's pose of its scan
-    int odometry_run = 0;
     std::size_t frame = 0; ///< frame count of its scan
   };
   std::optional<Pending> pending;
@@ -578,6 +580,7 @@ struct MapLocalization::Impl
     previous_confirmed = true;
     tracking_only = 0;
     T_world_previous = T_world_lidar;
+    pending.reset(); // an attempt in the background has nothing to add (waits for it)
   }
 
   /// Whether the placement of an earlier scan (recent_placement), moved by the
@@ -665,7 +668,6 @@ struct MapLocalization::Impl
         f.message = text + f.message;
       }
     }
-    pending.reset();     // an attempt in the background has nothing to add (waits for it)
     recent_rmse.clear(); // residuals from here on are of this placement's place
     confirm(placement.T_world_lidar, dt);
   }
@@ -767,7 +769,6 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
       f.rmse_m = a->rmse_m;
       f.message = "aligned to key-frame " + std::to_string(a->keyframe);
       m.failed_placements = 0;
-      m.pending.reset(); // a background attempt has nothing to add (waits for it)
       m.confirm(a->T_world_lidar, dt);
       f.time_ms = watch.getTime();
       return f;
@@ -791,19 +792,18 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
     const std::size_t ago = m.frames - job.frame;
     const std::string from = "in the background from the scan " + std::to_string(ago) +
                              (ago == 1 ? " frame" : " frames") + " before: ";
-    // Defensive: the odometry starts afresh only after a jump or a localized frame, and
-    // both drop the attempt first. An attempt starts with no tentative placement in
-    // the window (placeInBackground), so there is none to agree with here either.
-    if (job.odometry_run != m.odometry_run) {
-      collected = from + "dropped, the odometry started afresh since";
-    } else {
+    // The odometry is the run that tracked its scan: it starts afresh only after a jump
+    // or a frame the map confirmed, and both drop the attempt (confirm). An attempt
+    // starts with no tentative placement in the window (placeInBackground), so there
+    // is none for this one to agree with.
+    {
       const Pose3d T_world_found = p.T_world_lidar;
       p.T_world_lidar = normalizedPose(T_world_found *
                                        (job.T_odom_lidar.inverse() * odo->T_world_lidar));
       p.message = from + p.message;
       if (p.success || p.tentative)
         m.recent_placement = Impl::Recent{
-            T_world_found, job.T_odom_lidar, job.odometry_run, job.frame, !p.success};
+            T_world_found, job.T_odom_lidar, m.odometry_run, job.frame, !p.success};
       m.failed_placements = p.success ? 0 : m.failed_placements + 1;
       if (p.success) {
         m.takePlacement(f, p, predicted, dt);
@@ -857,7 +857,6 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
                                                        : localizer.place(query);
                                  }),
                       odo->T_world_lidar,
-                      m.odometry_run,
                       m.frames};
     m.last_attempt_frame = m.frames;
     const int lag = m.params.background_placement_lag;

@@ -2,6 +2,13 @@
 /// are placed on the map with no prior pose, and scans of a world that was never mapped
 /// are not placed at all. Simulated (HDL-64 loop, seed 3; the other world seed 9).
 
+#include <pcl/simulation/lidar_simulator.h>
+#include <pcl/slam/rast_slam.h>
+#include <pcl/slam/session.h>
+#include <pcl/slam/session_localizer.h>
+
+#include <gtest/gtest.h>
+
 #include "simulated_drive.h"
 #include "temp_cleanup.h"
 
@@ -10,11 +17,6 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
-#include <gtest/gtest.h>
-#include <pcl/simulation/lidar_simulator.h>
-#include <pcl/slam/rast_slam.h>
-#include <pcl/slam/session.h>
-#include <pcl/slam/session_localizer.h>
 #include <string>
 #include <utility>
 #include <vector>
