@@ -1,10 +1,10 @@
 /// \file deskew.cpp
 /// \brief Motion compensation of raw sweeps: SE(3) log / exp, azimuth times, eq. (1).
 
+#include "fast_math.h"
+
 #include <algorithm>
 #include <cmath>
-#include <cstdint>
-#include <cstring>
 #include <limits>
 #include <pcl/slam/deskew.h>
 #include <stdexcept>
@@ -34,45 +34,6 @@ leftJacobian(const Eigen::Vector3d& w)
   const double t2 = theta * theta;
   return Eigen::Matrix3d::Identity() + (1.0 - std::cos(theta)) / t2 * W +
          (theta - std::sin(theta)) / (t2 * theta) * W * W;
-}
-
-/// \a u where \a c holds, else \a v, in integer operations on the bits.
-///
-/// `c ? u : v` on floats leaves a loop scalar: gcc sinks the computation of \a u into
-/// a branch, and under -ftrapping-math (its default) it will not speculate a
-/// floating-point operation out of one again ("control flow in loop"). A select
-/// whose operands are both used unconditionally, through integer masks, vectorizes.
-inline float
-pick(bool c, float u, float v)
-{
-  std::uint32_t bu, bv;
-  std::memcpy(&bu, &u, sizeof bu);
-  std::memcpy(&bv, &v, sizeof bv);
-  const std::uint32_t mask = 0u - static_cast<std::uint32_t>(c);
-  const std::uint32_t out = bv ^ ((bv ^ bu) & mask);
-  float f;
-  std::memcpy(&f, &out, sizeof f);
-  return f;
-}
-
-/// atan2 in single precision to ~1e-5 rad (1.6e-7 s of a 0.1 s sweep; 0.5 mm at
-/// 30 m/s): the degree-9 polynomial of atan on [0, 1] of Abramowitz & Stegun 4.4.47,
-/// then the octant. Branch-free (pick), so the compiler vectorizes the loop.
-inline float
-fastAtan2(float y, float x)
-{
-  constexpr float kPiF = 3.14159265f;
-  const float ax = std::abs(x), ay = std::abs(y);
-  const float mx = std::max(ax, ay);
-  // 0 / tiny is 0: the origin maps to azimuth 0 like std::atan2(0, 0).
-  const float a = std::min(ax, ay) / std::max(mx, std::numeric_limits<float>::min());
-  const float s = a * a;
-  float r =
-      a * (0.9998660f +
-           s * (-0.3302995f + s * (0.1801410f + s * (-0.0851330f + s * 0.0208351f))));
-  r = pick(ay > ax, 0.5f * kPiF - r, r);
-  r = pick(x < 0.0f, kPiF - r, r);
-  return pick(y < 0.0f, -r, r);
 }
 
 } // namespace
@@ -113,6 +74,9 @@ SweepParams::isValid(std::string* why) const
 }
 
 namespace {
+
+using fast_math::fastAtan2;
+using fast_math::pick;
 
 /// azimuthTimes for the points \a point(k), k < n.
 template <typename PointOf>
