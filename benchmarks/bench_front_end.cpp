@@ -293,6 +293,17 @@ BM_ProcessFrameNoVehiclePrior(benchmark::State& state)
 }
 BENCHMARK(BM_ProcessFrameNoVehiclePrior)->Unit(benchmark::kMillisecond)->Iterations(210);
 
+/// With the moving-object tests (-visibility-margin 1, off by default): their cost,
+/// side by side.
+void
+BM_ProcessFrameVisibility(benchmark::State& state)
+{
+  rast::OdometryParams params;
+  params.visibility_margin_m = 1.0;
+  processFrames(state, params);
+}
+BENCHMARK(BM_ProcessFrameVisibility)->Unit(benchmark::kMillisecond)->Iterations(210);
+
 /// With motion compensation from the azimuth (-deskew on) on every frame: its cost side
 /// by side with BM_ProcessFrame (deskew_ms: both passes, the second one's dense
 /// refinement included).

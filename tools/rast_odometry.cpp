@@ -110,6 +110,12 @@ run(int argc, char** argv)
                  "the prior gates stay fixed and the dense step has no pull to the prior "
                  "(the odometry before session 18; doc/odometry.md)",
                  &no_vehicle_prior);
+  args.addDouble(
+      "visibility-margin",
+      "moving objects: map voxels the scan sees through, and scan points the "
+      "key-frame saw through, by more than this are left out of the dense step "
+      "(m, e.g. 1; 0: off, the default; doc/odometry.md)",
+      &params.visibility_margin_m);
   if (!args.parse(argc, argv))
     return kExitOk;
   installStopSignals(); // a stop before the first frame ends the run there
@@ -140,6 +146,8 @@ run(int argc, char** argv)
       p.dense.young_map_scans = cli_params.dense.young_map_scans;
     if (args.given("degeneracy-support"))
       p.dense.degeneracy_min_support = cli_params.dense.degeneracy_min_support;
+    if (args.given("visibility-margin"))
+      p.visibility_margin_m = cli_params.visibility_margin_m;
     p.registration.refine = !no_refine;
     if (no_loose_rematch)
       p.loose_rematch = false;

@@ -185,6 +185,12 @@ OdometryParams::isValid(std::string* why) const
   else if (!(indistinct_residual_m >= 0.0 && std::isfinite(indistinct_residual_m)))
     reason = "indistinct_residual_m must be >= 0 and finite, got " +
              std::to_string(indistinct_residual_m);
+  else if (!(visibility_margin_m >= 0.0 && std::isfinite(visibility_margin_m)))
+    reason = "visibility_margin_m must be >= 0 and finite, got " +
+             std::to_string(visibility_margin_m);
+  else if (!finitePositive(visibility_radius_m))
+    reason = "visibility_radius_m must be > 0 and finite, got " +
+             std::to_string(visibility_radius_m);
   else if (!finitePositive(keyframe_voxel_size_m))
     reason = "keyframe_voxel_size_m must be > 0";
   else if (keyframe_min_inliers < 0)

@@ -52,6 +52,11 @@ moved(const Pose3d& a, const Pose3d& b, double metres, double degrees)
   return d.translation().norm() > metres || angleDeg(d) > degrees;
 }
 
+/// The moving-in test (visibility_margin_m) leaves points lower than this above the
+/// scan's ground plane alone: the visibility image holds no ground, and near it a
+/// point's surface may be ground in one scan and not in the next.
+constexpr float kMinHeightAboveGroundM = 0.5f;
+
 /// After this many frames without feature or dense tracking, a frame with features
 /// becomes a key-frame anyway (re-anchoring, flagged), so that tracking recovers after
 /// a featureless stretch instead of comparing forever against a stale key-frame.
@@ -167,6 +172,7 @@ struct Odometry::Impl
   // its pose may be corrected by the back end, tracking keeps its own copy.
   KeyFrame::ConstPtr keyframe;
   Pose3d T_world_keyframe = Pose3d::Identity();
+  odometry_detail::VisibilityImage keyframe_image; ///< the key-frame's Frame::image
   KeyFrameId next_keyframe_id = 0;
   int frames_since_keyframe = 0;
   int frames_without_tracking = 0;
@@ -220,6 +226,12 @@ struct Odometry::Impl
     pcl::PointCloud<pcl::PointXYZI>::ConstPtr kept_cloud; ///< see keptCloud
     /// The prior's fit overruled strong features in the frame before (trackDense).
     bool prior_overruled_before = false;
+    /// The compensated non-ground points' visibility image (visibility_margin_m > 0) ...
+    odometry_detail::VisibilityImage image;
+    /// ... and whether the prior is tight enough to test against it (useVisibility).
+    bool check_visibility = false;
+    /// The scan's ground plane (normal up) with the image; zero without a ground.
+    Eigen::Vector4f ground_plane = Eigen::Vector4f::Zero();
   };
   /// The outcome of trackFeatures.
   struct FeatureTrack
@@ -268,6 +280,13 @@ struct Odometry::Impl
   bool nearPrior(const Frame& frame, const Pose3d& T_world_lidar) const
   {
     return withinGate(frame, T_world_lidar, priorGate(frame));
+  }
+  /// The moving-object tests (visibility_margin_m) place points by the prior: only with
+  /// a velocity tracked up to the last frame where the gates shrink (decimetres).
+  bool useVisibility(const Frame& frame) const
+  {
+    return params.visibility_margin_m > 0.0 && velocity_tracked && !frame.image.empty() &&
+           priorGate(frame).dynamics;
   }
   /// Dense options anchored to the frame's prior (degenerate directions take its
   /// value), pulled toward it by dense_prior_ratio where priorGate(frame).dynamics.

@@ -4,6 +4,8 @@
 
 #include "odometry_local_map.h"
 
+#include "fast_math.h"
+
 #include <pcl/registration/point_to_plane_system.h>
 
 #include <Eigen/Eigenvalues> // fitPlane
@@ -128,6 +130,9 @@ VoxelPlaneMap::insert(const Points3f& points_world, const Eigen::Vector3f& cente
 {
   const std::size_t max_points =
       static_cast<std::size_t>(params_.map_max_points_per_voxel);
+  for (const int v : hidden_)
+    voxels_[v].hidden = false;
+  hidden_.clear();
   std::vector<int> touched;
   for (const auto& p : points_world) {
     const auto [v, inserted] = index_.insert(key(p), static_cast<int>(voxels_.size()));
@@ -170,11 +175,107 @@ VoxelPlaneMap::insert(const Points3f& points_world, const Eigen::Vector3f& cente
   }
 }
 
+/// Planes whose normal is steeper than this (about 45 deg from vertical) are level.
+constexpr float kLevelNormalZ = 0.7f;
+
+int
+VoxelPlaneMap::hideSeenThrough(const VisibilityImage* image,
+                               const Eigen::Isometry3f& T_world_lidar,
+                               float radius_m,
+                               float margin_m)
+{
+  for (const int v : hidden_)
+    voxels_[v].hidden = false;
+  hidden_.clear();
+  if (!image || image->empty())
+    return 0;
+  const Eigen::Isometry3f T_lidar_world = T_world_lidar.inverse();
+  const Eigen::Vector3f origin = T_world_lidar.translation();
+  const float radius_sq = radius_m * radius_m;
+  for (std::size_t v = 0; v < voxels_.size(); ++v) {
+    Voxel& voxel = voxels_[v];
+    // Level planes (the ground, roofs) hold no motion along the road, and the image,
+    // made without the ground, cannot tell where the ground stops a ray.
+    if (!voxel.planar || std::abs(voxel.normal.z()) > kLevelNormalZ ||
+        (voxel.centroid - origin).squaredNorm() > radius_sq)
+      continue;
+    if (image->seenPast(T_lidar_world * voxel.centroid, margin_m)) {
+      voxel.hidden = true;
+      hidden_.push_back(static_cast<int>(v));
+    }
+  }
+  return static_cast<int>(hidden_.size());
+}
+
+inline int
+VisibilityImage::cellOf(float x, float y, float z, float& range)
+{
+  constexpr float kPiF = 3.14159265f;
+  const float xy_sq = x * x + y * y;
+  const float xy = fast_math::fastSqrt(xy_sq);
+  range = fast_math::fastSqrt(xy_sq + z * z);
+  const float az = fast_math::fastAtan2(y, x);
+  const float el_deg = fast_math::fastAtan2(z, xy) * (180.0f / kPiF);
+  const int col = std::min(
+      kCols - 1, std::max(0, static_cast<int>((az + kPiF) * (kCols / (2.0f * kPiF)))));
+  const float row_f = (el_deg - kMinElevationDeg) / kRowDeg;
+  const int row = static_cast<int>(row_f); // row_f < 0: rejected below
+  // Without branches (bitwise & and a mask), so that the loop over points vectorizes.
+  const bool valid = (range > 0.5f) & (row_f >= 0.0f) & (row < kRows);
+  const int mask = -static_cast<int>(valid);
+  return ((row * kCols + col) & mask) | ~mask;
+}
+
+VisibilityImage::VisibilityImage(const pcl::PointCloud<pcl::PointXYZI>& points)
+    : range_(static_cast<std::size_t>(kRows) * kCols,
+             std::numeric_limits<float>::infinity())
+{
+  // Blocks of coordinates copied out of the points, their cells computed in a loop
+  // over local arrays that the compiler vectorizes (fast_math), then the minima.
+  constexpr std::size_t kBlock = 256;
+  float xs[kBlock], ys[kBlock], zs[kBlock], ranges[kBlock];
+  int cells[kBlock];
+  const std::size_t n = points.size();
+  for (std::size_t i0 = 0; i0 < n; i0 += kBlock) {
+    const std::size_t m = std::min(kBlock, n - i0);
+    for (std::size_t k = 0; k < m; ++k) {
+      xs[k] = points.points[i0 + k].x;
+      ys[k] = points.points[i0 + k].y;
+      zs[k] = points.points[i0 + k].z;
+    }
+    for (std::size_t k = 0; k < m; ++k)
+      cells[k] = cellOf(xs[k], ys[k], zs[k], ranges[k]);
+    for (std::size_t k = 0; k < m; ++k)
+      if (cells[k] >= 0)
+        range_[static_cast<std::size_t>(cells[k])] =
+            std::min(range_[static_cast<std::size_t>(cells[k])], ranges[k]);
+  }
+}
+
+bool
+VisibilityImage::seenPast(const Eigen::Vector3f& p, float margin_m) const
+{
+  float range = 0.0f;
+  const int cell = empty() ? -1 : cellOf(p.x(), p.y(), p.z(), range);
+  if (cell < 0)
+    return false;
+  const int row = cell / kCols, col = cell % kCols;
+  if (row == 0 || row == kRows - 1)
+    return false;
+  float nearest = std::numeric_limits<float>::infinity();
+  for (int dr = -1; dr <= 1; ++dr)
+    for (int dc = -1; dc <= 1; ++dc)
+      nearest = std::min(nearest,
+                         range_[static_cast<std::size_t>(row + dr) * kCols +
+                                (col + dc + kCols) % kCols]);
+  return std::isfinite(nearest) && nearest > range + margin_m;
+}
+
 const VoxelPlaneMap::Voxel*
 VoxelPlaneMap::planarVoxel(std::int64_t x, std::int64_t y, std::int64_t z) const
 {
   const int v = index_.find(packVoxelKey(x, y, z));
-  return v >= 0 && voxels_[v].planar ? &voxels_[v] : nullptr;
+  return v >= 0 && voxels_[v].planar && !voxels_[v].hidden ? &voxels_[v] : nullptr;
 }
 
 bool
@@ -190,6 +291,8 @@ VoxelPlaneMap::plane(const Eigen::Vector3f& query,
     normal = own->normal;
     return true;
   }
+  if (const int v = index_.find(packVoxelKey(x, y, z)); v >= 0 && voxels_[v].hidden)
+    return false; // what moved out of it must not pair through a neighbour either
   // The point may sit just off its surface's voxel: try the face neighbours.
   static const int kFaces[6][3] = {
       {1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};

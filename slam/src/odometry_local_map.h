@@ -54,6 +54,30 @@ Points3f toPoints(const pcl::PointCloud<pcl::PointXYZI>& cloud);
 /// \brief Every k-th index so that at most \a max_points remain (k = ceil(n / max)).
 std::vector<int> strideSubsample(const std::vector<int>& indices, std::size_t max_points);
 
+/// \brief A spherical range image of one scan (azimuth x elevation cells, the nearest
+/// return per cell), to ask whether the scan saw past a point: free space where a point
+/// now is (or was) means that the point moved.
+class VisibilityImage
+{
+public:
+  VisibilityImage() = default;
+  /// \brief The image of \a points (sensor frame).
+  explicit VisibilityImage(const pcl::PointCloud<pcl::PointXYZI>& points);
+  bool empty() const { return range_.empty(); }
+  /// \brief True when the scan saw through where \a p (sensor frame) lies: the nearest
+  /// return in the cell of its direction and the eight around it lies more than
+  /// \a margin_m beyond |p|. Cells without a return (sky; the ground, which the image
+  /// leaves out) do not count; when none of the nine has one, false.
+  bool seenPast(const Eigen::Vector3f& p, float margin_m) const;
+
+private:
+  static constexpr int kCols = 1024, kRows = 100;
+  static constexpr float kMinElevationDeg = -30.0f, kRowDeg = 0.5f;
+  /// The cell of (x, y, z) and its range; -1 outside the image.
+  static int cellOf(float x, float y, float z, float& range);
+  std::vector<float> range_; ///< kRows x kCols, +inf: no return
+};
+
 /// \brief The local map: voxels of the key-frames' points in the world frame, each with
 /// a plane (centroid, unit normal) fitted when the voxel changes.
 class VoxelPlaneMap
@@ -71,6 +95,15 @@ public:
              Eigen::Vector3f& centroid,
              Eigen::Vector3f& normal) const;
 
+  /// \brief Hide the planar voxels within \a radius_m of the sensor that \a image
+  /// (taken at \a T_world_lidar) sees through by more than \a margin_m (moving
+  /// objects the map holds) until the next call or insert; returns how many. Null
+  /// \a image: only the last call's voxels are shown again.
+  int hideSeenThrough(const VisibilityImage* image,
+                      const Eigen::Isometry3f& T_world_lidar,
+                      float radius_m,
+                      float margin_m);
+
   std::size_t size() const { return voxels_.size() - num_dropped_; }
   bool empty() const { return size() == 0; }
 
@@ -81,6 +114,7 @@ private:
     Eigen::Vector3f centroid = Eigen::Vector3f::Zero();
     Eigen::Vector3f normal = Eigen::Vector3f::Zero();
     bool planar = false;
+    bool hidden = false; ///< hideSeenThrough
   };
   VoxelKey key(const Eigen::Vector3f& p) const;
   /// The voxel at (x, y, z) when it holds a plane, else null.
@@ -92,6 +126,7 @@ private:
   std::vector<Voxel> voxels_;   ///< insertion order; dropped ones empty until compacted
   VoxelHashMap index_;          ///< voxel key -> position in voxels_
   std::size_t num_dropped_ = 0; ///< voxels dropped by the radius crop, not compacted yet
+  std::vector<int> hidden_;     ///< voxels hidden by the last hideSeenThrough
 };
 
 /// \brief Outcome of registerToMap.

@@ -91,6 +91,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
     result.message = "first frame: key-frame 0";
     watch.reset();
     result.keyframe = makeKeyFrame(result, *frame.features, frame.input);
+    keyframe_image = std::move(frame.image);
     result.reference_keyframe = result.keyframe->id;
     result.timings.keyframe_ms = watch.getTime();
     result.timings.total_ms = frame.watch.getTime();
@@ -98,6 +99,16 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   }
 
   const FeatureTrack feature_track = trackFeatures(frame, result); // 4
+  // 4b. What moved out of the map's voxels, as this scan sees it from the prior, does
+  //     not pair this frame (moving objects; makeDenseSource drops what moved in).
+  frame.check_visibility = useVisibility(frame);
+  const pcl::StopWatch hide_watch;
+  result.hidden_map_voxels =
+      map.hideSeenThrough(frame.check_visibility ? &frame.image : nullptr,
+                          frame.T_world_prior.cast<float>(),
+                          static_cast<float>(params.visibility_radius_m),
+                          static_cast<float>(params.visibility_margin_m));
+  result.timings.visibility_ms += hide_watch.getTime();
 
   // 5. Dense refinement against the local map, from the feature estimate; the
   //    feature-consistency check falls back to dense ICP from the prior, then to the
@@ -156,6 +167,18 @@ Odometry::Impl::extractFeatures(Frame& frame, OdometryFrameResult& result)
     non_ground = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
     pcl::copyPointCloud(frame.input, non_ground_indices, *non_ground);
     result.timings.ground_ms += watch.getTime();
+  }
+  if (params.visibility_margin_m > 0.0) { // before levelling: in the LiDAR frame
+    const pcl::StopWatch w;
+    frame.image = VisibilityImage(*non_ground);
+    // The image holds no ground, so where a ray met the ground it cannot tell: the
+    // moving-in test leaves points near the ground alone (upward normal, +d).
+    if (result.ground_found) {
+      frame.ground_plane = ground.getGroundPlane();
+      if (frame.ground_plane.z() < 0.0f)
+        frame.ground_plane = -frame.ground_plane;
+    }
+    result.timings.visibility_ms = w.getTime(); // + hiding the map's voxels (track)
   }
   if (levelled)
     for (auto& p : non_ground->points)
@@ -273,6 +296,25 @@ Odometry::Impl::makeDenseSource(Frame& frame, OdometryFrameResult& result) const
     result.timings.deskew_ms += t0.getTime();
   } else {
     frame.source = toPoints(frame.input, frame.source_indices);
+  }
+  if (frame.check_visibility && !keyframe_image.empty()) {
+    // The points that moved in: the key-frame's scan saw past where the prior puts them
+    // (only above the ground: without a ground plane, none).
+    const auto margin = static_cast<float>(params.visibility_margin_m);
+    const Eigen::Isometry3f T_keyframe_lidar =
+        (T_world_keyframe.inverse() * frame.T_world_prior).cast<float>();
+    std::size_t kept = 0;
+    for (std::size_t k = 0; k < frame.source.size(); ++k)
+      if (frame.ground_plane.head<3>().dot(frame.source[k]) + frame.ground_plane.w() <
+              kMinHeightAboveGroundM ||
+          !keyframe_image.seenPast(T_keyframe_lidar * frame.source[k], margin)) {
+        frame.source[kept] = frame.source[k];
+        frame.source_indices[kept] = frame.source_indices[k];
+        ++kept;
+      }
+    result.dropped_moving_points = static_cast<int>(frame.source.size() - kept);
+    frame.source.resize(kept);
+    frame.source_indices.resize(kept);
   }
 }
 
@@ -509,6 +551,7 @@ Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
   const bool reanchor = frames_without_tracking + 1 >= kReanchorAfterFrames && useful;
   if ((tracked && (paper_rule || far || weak)) || reanchor) {
     result.keyframe = makeKeyFrame(result, *frame.features, keptCloud(frame, result));
+    keyframe_image = std::move(frame.image);
     result.reference_keyframe = result.keyframe->id;
     result.T_keyframe_lidar = Pose3d::Identity();
     if (!tracked) {

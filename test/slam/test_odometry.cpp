@@ -201,6 +201,15 @@ TEST(OdometryParams, DefaultsAreValidAndBadValuesAreRejected)
   params = rast::OdometryParams();
   params.dense_prior_ratio = 1.0;
   expectInvalid(params, "dense_prior_ratio");
+  params = rast::OdometryParams();
+  params.visibility_margin_m = -0.5;
+  expectInvalid(params, "visibility_margin_m");
+  params = rast::OdometryParams();
+  params.visibility_radius_m = 0.0;
+  expectInvalid(params, "visibility_radius_m");
+  params = rast::OdometryParams();
+  params.visibility_margin_m = 0.0; // off
+  EXPECT_TRUE(params.isValid(&why)) << why;
 }
 
 TEST(Odometry, StatusNames)

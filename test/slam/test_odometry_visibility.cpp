@@ -1,0 +1,168 @@
+/// Moving objects in the odometry's dense step: a scan's visibility image tells where
+/// it saw through, the local map hides the voxels it sees through (what moved out of
+/// them), and in simulated traffic the odometry hides what the cars left while a
+/// static world keeps its map.
+
+#include "../../slam/src/odometry_local_map.h"
+
+#include <cmath>
+#include <gtest/gtest.h>
+#include <iostream>
+#include <memory>
+#include <numeric>
+#include <pcl/simulation/lidar_simulator.h>
+#include <pcl/slam/odometry.h>
+#include <vector>
+
+namespace {
+
+using pcl::rast::odometry_detail::Points3f;
+using pcl::rast::odometry_detail::VisibilityImage;
+using pcl::rast::odometry_detail::VoxelPlaneMap;
+
+/// A wall across the x axis at \a x_m, |y| <= \a half_width_m, z from -1 to
+/// \a top_m, on a grid of \a step_m.
+void
+addWall(double x_m,
+        pcl::PointCloud<pcl::PointXYZI>& cloud,
+        double step_m = 0.05,
+        double half_width_m = 5.0,
+        double top_m = 2.0)
+{
+  for (double y = -half_width_m; y <= half_width_m; y += step_m)
+    for (double z = -1.0; z <= top_m; z += step_m) {
+      pcl::PointXYZI p;
+      p.x = static_cast<float>(x_m);
+      p.y = static_cast<float>(y);
+      p.z = static_cast<float>(z);
+      p.intensity = 0.5f;
+      cloud.push_back(p);
+    }
+}
+
+Points3f
+toPoints(const pcl::PointCloud<pcl::PointXYZI>& cloud)
+{
+  Points3f points;
+  for (const auto& p : cloud.points)
+    points.push_back(p.getVector3fMap());
+  return points;
+}
+
+TEST(VisibilityImage, SeesPastOnlyWhereTheScanDid)
+{
+  pcl::PointCloud<pcl::PointXYZI> scan;
+  addWall(20.0, scan);
+  const VisibilityImage image(scan);
+  ASSERT_FALSE(image.empty());
+  // In front of the wall, the scan saw through: free space.
+  EXPECT_TRUE(image.seenPast({10.0f, 0.0f, 0.5f}, 1.0f));
+  EXPECT_TRUE(image.seenPast({18.5f, 1.0f, 0.0f}, 1.0f));
+  // On the wall, within the margin, or behind it: not seen past.
+  EXPECT_FALSE(image.seenPast({19.5f, 0.0f, 0.5f}, 1.0f));
+  EXPECT_FALSE(image.seenPast({20.0f, 0.0f, 0.5f}, 1.0f));
+  EXPECT_FALSE(image.seenPast({30.0f, 0.0f, 0.5f}, 1.0f));
+  // Where the scan has no return at all (behind the sensor, the sky): nothing known.
+  EXPECT_FALSE(image.seenPast({-10.0f, 0.0f, 0.5f}, 1.0f));
+  EXPECT_FALSE(image.seenPast({10.0f, 0.0f, 8.0f}, 1.0f));
+  EXPECT_FALSE(VisibilityImage().seenPast({10.0f, 0.0f, 0.5f}, 1.0f));
+}
+
+TEST(VoxelPlaneMap, HidesWhatTheScanSeesThroughUntilTheNextCall)
+{
+  // The map: the back of a truck 10 m ahead and a wall at 30 m, seen from the origin.
+  // (A 0.25 m grid: the first 20 points of each 1 m voxel span a plane.)
+  pcl::PointCloud<pcl::PointXYZI> before;
+  addWall(10.0, before, 0.25);
+  addWall(30.0, before, 0.25);
+  VoxelPlaneMap map;
+  map.insert(toPoints(before), Eigen::Vector3f::Zero());
+  Eigen::Vector3f centroid, normal;
+  const Eigen::Vector3f truck(10.0f, 0.2f, 0.5f), wall(30.0f, 0.2f, 0.5f);
+  ASSERT_TRUE(map.plane(truck, centroid, normal));
+  ASSERT_TRUE(map.plane(wall, centroid, normal));
+
+  // The truck drove off: the next scan sees the wall (higher and wider than the truck
+  // seen from the sensor) through where it stood.
+  pcl::PointCloud<pcl::PointXYZI> after;
+  addWall(30.0, after, 0.05, 20.0, 7.0);
+  const VisibilityImage image(after);
+  const int hidden =
+      map.hideSeenThrough(&image, Eigen::Isometry3f::Identity(), 40.0f, 1.0f);
+  EXPECT_GT(hidden, 0);
+  EXPECT_FALSE(map.plane(truck, centroid, normal)) << "the truck's voxels pair no more";
+  EXPECT_TRUE(map.plane(wall, centroid, normal)) << "the wall it saw stays";
+
+  // Beyond the radius nothing is hidden; without an image everything shows again.
+  EXPECT_EQ(map.hideSeenThrough(&image, Eigen::Isometry3f::Identity(), 5.0f, 1.0f), 0);
+  EXPECT_TRUE(map.plane(truck, centroid, normal));
+  map.hideSeenThrough(&image, Eigen::Isometry3f::Identity(), 40.0f, 1.0f);
+  map.hideSeenThrough(nullptr, Eigen::Isometry3f::Identity(), 40.0f, 1.0f);
+  EXPECT_TRUE(map.plane(truck, centroid, normal));
+  // A margin larger than the 20 m the scan saw past the truck hides nothing.
+  EXPECT_EQ(map.hideSeenThrough(&image, Eigen::Isometry3f::Identity(), 40.0f, 25.0f), 0);
+}
+
+/// Hidden map voxels and dropped points per frame of a simulated HDL-64 drive.
+struct VisibilityCounts
+{
+  std::vector<int> hidden, dropped;
+  int total(const std::vector<int>& v) const
+  {
+    return std::accumulate(v.begin(), v.end(), 0);
+  }
+};
+
+VisibilityCounts
+drive(bool moving_cars)
+{
+  pcl::rast::PathParams path;
+  path.type = pcl::rast::PathType::kStraight;
+  path.num_frames = 40;
+  path.speed_mps = 10.0;
+  pcl::rast::LidarSimulatorParams params;
+  params.seed = 31;
+  params.num_threads = 2;
+  params.world.moving_cars = moving_cars;
+  params.world.traffic.mode = pcl::rast::TrafficMode::kRealistic;
+  pcl::rast::LidarSimulator sim(params, pcl::rast::generatePath(path));
+  pcl::rast::OdometryParams odometry_params;
+  odometry_params.visibility_margin_m = 1.0;
+  pcl::rast::Odometry odometry(odometry_params);
+  VisibilityCounts counts;
+  for (std::size_t i = 0; i < sim.numFrames(); ++i) {
+    auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    sim.simulateFrame(i, *cloud);
+    const auto r = odometry.processFrame(cloud, sim.timestamp(i), i);
+    counts.hidden.push_back(r.hidden_map_voxels);
+    counts.dropped.push_back(r.dropped_moving_points);
+  }
+  return counts;
+}
+
+TEST(OdometryVisibility, TrafficIsHiddenAndAStaticWorldIsNot)
+{
+  const VisibilityCounts traffic = drive(true), still = drive(false);
+  std::cout << "hidden voxels: traffic " << traffic.total(traffic.hidden) << ", static "
+            << still.total(still.hidden) << "; dropped points: traffic "
+            << traffic.total(traffic.dropped) << ", static " << still.total(still.dropped)
+            << "\n";
+  // The cars leave voxels behind that later scans see through, and drive into space
+  // the key-frame saw empty.
+  EXPECT_GT(traffic.total(traffic.hidden), 100);
+  EXPECT_GT(traffic.total(traffic.dropped), 10);
+  // In a static world almost nothing is seen through: no map voxel, and a few of the
+  // dense step's ~1000 points a frame (silhouettes seen from another place).
+  EXPECT_LT(still.total(still.hidden), traffic.total(traffic.hidden) / 20);
+  EXPECT_LT(still.total(still.dropped), 5 * static_cast<int>(still.dropped.size()));
+  EXPECT_GT(traffic.total(traffic.dropped), 2 * still.total(still.dropped));
+  // The first frames have no tracked velocity to place points by: no test there.
+  EXPECT_EQ(traffic.hidden[0] + traffic.hidden[1], 0);
+}
+
+TEST(OdometryVisibility, OffByDefault)
+{
+  EXPECT_EQ(pcl::rast::OdometryParams().visibility_margin_m, 0.0);
+}
+
+} // namespace
