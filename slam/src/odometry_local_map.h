@@ -97,8 +97,9 @@ public:
 
   /// \brief Hide the planar voxels within \a radius_m of the sensor that \a image
   /// (taken at \a T_world_lidar) sees through by more than \a margin_m (moving
-  /// objects the map holds) until the next call or insert; returns how many. Null
-  /// \a image: only the last call's voxels are shown again.
+  /// objects the map holds) until the next call or insert; returns how many. Level
+  /// planes (the ground, roofs) are never hidden. Null \a image: only the last call's
+  /// voxels are shown again.
   int hideSeenThrough(const VisibilityImage* image,
                       const Eigen::Isometry3f& T_world_lidar,
                       float radius_m,
