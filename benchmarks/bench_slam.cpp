@@ -9,10 +9,10 @@
 
 #include <benchmark/benchmark.h>
 
+#include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/bundle_adjustment.h>
 #include <pcl/slam/keyframe_database.h>
 #include <pcl/slam/odometry.h>
-#include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/rast_slam.h>
 
 #include <cmath>

@@ -130,9 +130,7 @@ VoxelPlaneMap::insert(const Points3f& points_world, const Eigen::Vector3f& cente
 {
   const std::size_t max_points =
       static_cast<std::size_t>(params_.map_max_points_per_voxel);
-  for (const int v : hidden_)
-    voxels_[v].hidden = false;
-  hidden_.clear();
+  showHidden();
   std::vector<int> touched;
   for (const auto& p : points_world) {
     const auto [v, inserted] = index_.insert(key(p), static_cast<int>(voxels_.size()));
@@ -175,6 +173,14 @@ VoxelPlaneMap::insert(const Points3f& points_world, const Eigen::Vector3f& cente
   }
 }
 
+void
+VoxelPlaneMap::showHidden()
+{
+  for (const int v : hidden_)
+    voxels_[v].hidden = false;
+  hidden_.clear();
+}
+
 /// Planes whose normal is steeper than this (about 45 deg from vertical) are level.
 constexpr float kLevelNormalZ = 0.7f;
 
@@ -184,9 +190,7 @@ VoxelPlaneMap::hideSeenThrough(const VisibilityImage* image,
                                float radius_m,
                                float margin_m)
 {
-  for (const int v : hidden_)
-    voxels_[v].hidden = false;
-  hidden_.clear();
+  showHidden();
   if (!image || image->empty())
     return 0;
   const Eigen::Isometry3f T_lidar_world = T_world_lidar.inverse();
@@ -286,13 +290,16 @@ VoxelPlaneMap::plane(const Eigen::Vector3f& query,
   const auto x = static_cast<std::int64_t>(std::floor(query.x() * inv_voxel_size_));
   const auto y = static_cast<std::int64_t>(std::floor(query.y() * inv_voxel_size_));
   const auto z = static_cast<std::int64_t>(std::floor(query.z() * inv_voxel_size_));
-  if (const Voxel* own = planarVoxel(x, y, z)) {
-    centroid = own->centroid;
-    normal = own->normal;
-    return true;
+  if (const int v = index_.find(packVoxelKey(x, y, z)); v >= 0) {
+    const Voxel& own = voxels_[v];
+    if (own.hidden)
+      return false; // what moved out of it must not pair through a neighbour either
+    if (own.planar) {
+      centroid = own.centroid;
+      normal = own.normal;
+      return true;
+    }
   }
-  if (const int v = index_.find(packVoxelKey(x, y, z)); v >= 0 && voxels_[v].hidden)
-    return false; // what moved out of it must not pair through a neighbour either
   // The point may sit just off its surface's voxel: try the face neighbours.
   static const int kFaces[6][3] = {
       {1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};

@@ -118,6 +118,8 @@ private:
     bool hidden = false; ///< hideSeenThrough
   };
   VoxelKey key(const Eigen::Vector3f& p) const;
+  /// Undo the last hideSeenThrough.
+  void showHidden();
   /// The voxel at (x, y, z) when it holds a plane, else null.
   const Voxel* planarVoxel(std::int64_t x, std::int64_t y, std::int64_t z) const;
   void fitPlane(Voxel& voxel) const;

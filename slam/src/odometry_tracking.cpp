@@ -172,12 +172,9 @@ Odometry::Impl::extractFeatures(Frame& frame, OdometryFrameResult& result)
     const pcl::StopWatch w;
     frame.image = VisibilityImage(*non_ground);
     // The image holds no ground, so where a ray met the ground it cannot tell: the
-    // moving-in test leaves points near the ground alone (upward normal, +d).
-    if (result.ground_found) {
+    // moving-in test leaves points near the ground alone (the plane's normal points up).
+    if (result.ground_found)
       frame.ground_plane = ground.getGroundPlane();
-      if (frame.ground_plane.z() < 0.0f)
-        frame.ground_plane = -frame.ground_plane;
-    }
     result.timings.visibility_ms = w.getTime(); // + hiding the map's voxels (track)
   }
   if (levelled)

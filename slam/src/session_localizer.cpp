@@ -13,11 +13,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <deque>
 #include <future>
 #include <map>
 #include <optional>
-#include <cstdio>
 #include <stdexcept>
 
 namespace pcl {

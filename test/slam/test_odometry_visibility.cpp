@@ -16,7 +16,7 @@
 
 namespace {
 
-using pcl::rast::odometry_detail::Points3f;
+using pcl::rast::odometry_detail::toPoints;
 using pcl::rast::odometry_detail::VisibilityImage;
 using pcl::rast::odometry_detail::VoxelPlaneMap;
 
@@ -38,15 +38,6 @@ addWall(double x_m,
       p.intensity = 0.5f;
       cloud.push_back(p);
     }
-}
-
-Points3f
-toPoints(const pcl::PointCloud<pcl::PointXYZI>& cloud)
-{
-  Points3f points;
-  for (const auto& p : cloud.points)
-    points.push_back(p.getVector3fMap());
-  return points;
 }
 
 TEST(VisibilityImage, SeesPastOnlyWhereTheScanDid)
