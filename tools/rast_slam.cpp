@@ -261,6 +261,7 @@ run(int argc, char** argv)
   bool no_revisit_culling = !defaults.loop_closing.cull_revisits;
   int young_map_scans = defaults.odometry.dense.young_map_scans;
   double degeneracy_support = defaults.odometry.dense.degeneracy_min_support;
+  double visibility_margin = defaults.odometry.visibility_margin_m;
   bool no_vehicle_prior = false;
   bool no_ba = false;
   bool ba = false;
@@ -323,6 +324,11 @@ run(int argc, char** argv)
                    "tracking: the prior gates stay fixed and the dense step has no pull to "
                    "the prior (the odometry before session 18; doc/odometry.md)",
                    &no_vehicle_prior);
+  parser.addDouble("visibility-margin",
+                   "tracking, moving objects: map voxels the scan sees through, and scan "
+                   "points the key-frame saw through, by more than this are left out of the "
+                   "dense step (m, e.g. 1; 0: off, the default; doc/odometry.md)",
+                   &visibility_margin);
   parser.addDouble("map-leaf", "voxel size of map.pcd [m]", &map_leaf_m);
   parser.addSwitch("software-render", "render.png with OpenCV instead of VTK (faster)",
                    &software_render);
@@ -342,6 +348,9 @@ run(int argc, char** argv)
   if (!(degeneracy_support >= 0.0) || !std::isfinite(degeneracy_support))
     throw std::invalid_argument("-degeneracy-support must be finite and >= 0, got " +
                                 std::to_string(degeneracy_support));
+  if (!(visibility_margin >= 0.0) || !std::isfinite(visibility_margin))
+    throw std::invalid_argument("-visibility-margin must be finite and >= 0, got " +
+                                std::to_string(visibility_margin));
   pcl_rast_tools::checkDeskewFlags(deskew);
   if (!(map_leaf_m > 0.0))
     throw std::invalid_argument("-map-leaf must be > 0, got " + std::to_string(map_leaf_m));
@@ -430,6 +439,8 @@ run(int argc, char** argv)
     params.odometry.dense.young_map_scans = young_map_scans;
   if (parser.given("degeneracy-support"))
     params.odometry.dense.degeneracy_min_support = degeneracy_support;
+  if (parser.given("visibility-margin"))
+    params.odometry.visibility_margin_m = visibility_margin;
   if (no_vehicle_prior)
     rast::disableVehiclePrior(params.odometry);
   if (!params.isValid(&why))
@@ -765,6 +776,7 @@ run(int argc, char** argv)
                        {"revisit_culling", params.loop_closing.cull_revisits},
                        {"young_map_scans", params.odometry.dense.young_map_scans},
                        {"degeneracy_support", params.odometry.dense.degeneracy_min_support},
+                       {"visibility_margin_m", params.odometry.visibility_margin_m},
                        {"local_ba", params.local_mapping.enable_bundle_adjustment},
                        {"global_ba", params.loop_closing.global_bundle_adjustment},
                        {"map_leaf_m", map_leaf_m},

@@ -157,10 +157,44 @@ TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
   EXPECT_NE(readFile(log_).find("-degeneracy-support must be finite and >= 0, got -2"),
             std::string::npos)
       << readFile(log_);
+  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + dir_.string() +
+                        "/o' -visibility-margin -0.5",
+                    log_),
+            1);
+  EXPECT_NE(readFile(log_).find("-visibility-margin must be finite and >= 0, got -0.5"),
+            std::string::npos)
+      << readFile(log_);
   EXPECT_FALSE(std::filesystem::exists(dir_ / "o" / "summary.json")) << "no work before the check";
   EXPECT_EQ(runTool("-h", log_), 0);
   EXPECT_NE(readFile(log_).find("-map-leaf"), std::string::npos);
   EXPECT_NE(readFile(log_).find("-no-revisit-culling"), std::string::npos);
+}
+
+/// -visibility-margin (issue 10, off by default) reaches the tracking of the SLAM as it
+/// reaches pcl_rast_odometry's: the summary records the value the odometry ran with.
+TEST_F(SlamTool, TheVisibilityMarginReachesTheTracking)
+{
+  const fs::path out = dir_ / "out";
+  const fs::path seq = sequenceDir();
+  ASSERT_EQ(runTool("-input '" + seq.string() + "' -output '" + out.string() + "' -gt '" +
+                        (seq / "poses.txt").string() +
+                        "' -software-render -threads off -visibility-margin 1",
+                    log_),
+            0)
+      << readFile(log_);
+  const auto summary = nlohmann::json::parse(readFile(out / "summary.json"));
+  EXPECT_EQ(summary["params"]["visibility_margin_m"].get<double>(), 1.0);
+  EXPECT_EQ(summary["frames"].get<int>(), 40);
+  EXPECT_LT(summary["ate_rmse_m"].get<double>(), 1.0);
+  ASSERT_EQ(runTool("-input '" + seq.string() + "' -output '" + out.string() +
+                        "' -software-render -threads off -last 3",
+                    log_),
+            0)
+      << readFile(log_);
+  EXPECT_EQ(nlohmann::json::parse(readFile(out / "summary.json"))["params"]["visibility_margin_m"]
+                .get<double>(),
+            0.0)
+      << "off by default";
 }
 
 /// -save-session: the run's map saved as a session that loads back with the run's
