@@ -101,7 +101,8 @@ for kind in "${kinds[@]}"; do
     if [ "$kind" = asan ]; then
       # The focused set: the programs whose tests hand the libraries and tools what a
       # user would (lying files, signals, full disks, sessions), keep memory of their
-      # own (spill file, map tiles, appearance index, session clouds), or run the whole
+      # own (spill file, map tiles, appearance index, voxel hashes, visibility image,
+      # the render), run hand-vectorized code (motion compensation), or run the whole
       # SLAM and its tools. Not here: the simulator's tests (it is uninstrumented), the
       # accuracy tests of long simulated drives, localization and session merging
       # beyond what their tools' tests run, the compile-only header check and the
@@ -114,7 +115,9 @@ for kind in "${kinds[@]}"; do
                slam_test_odometry slam_test_local_mapping slam_test_loop_detector
                features_test_orb_raster_features features_test_range_raster_image
                segmentation_test_sac_ground_removal
-               registration_test_raster_orb_registration)
+               registration_test_raster_orb_registration registration_test_dense_core
+               slam_test_deskew slam_test_odometry_visibility slam_test_odometry_degenerate
+               visualization_test_map_render)
       # Their test suites, as ctest names them (the programs left unbuilt list one
       # *_NOT_BUILT test each, which this pattern leaves out).
       suites=(HostileScans HostileTextFiles 'SequenceReader[A-Za-z]*' ReadScan PoseIo
@@ -125,7 +128,9 @@ for kind in "${kinds[@]}"; do
               LocalMapping SlamMap LoopDetector KeyFrameDatabase LoopDetectorRealData
               OrbRasterFeatures RangeRasterImage Projections/RangeRasterProjections
               SACGroundRemoval 'GroundFilter(/[0-9]+)?'
-              'RasterORBRegistration[A-Za-z]*(/[0-9]+)?')
+              'RasterORBRegistration[A-Za-z]*(/[0-9]+)?' VoxelKey VoxelHashMap
+              VoxelOccupancy DenseCore PointToPlaneSystem RobustWeight Deskew
+              VisibilityImage VoxelPlaneMap OdometryVisibility DenseDegeneracy MapRender)
       selected="^($(IFS='|'; echo "${suites[*]}"))\\."
       # Accuracy on simulated drives, 14-40 s each under ASan, whose code the tests
       # kept here run too: reproducibility (a second run of ClosesTheLoop...), revisits
