@@ -6,25 +6,29 @@ either side of that seam were recorded a whole sweep apart, so against the next 
 moved by the odometry's motion, the two sides need x-shifts that differ by the distance
 driven in one sweep. In a compensated scan both sides need the same shift. For each
 pair of consecutive scans this prints the best shift of each side (-1.2 to 1.2 m in
-5 cm steps; points 4-30 m away, above the ground, within 25 deg of the seam). A vehicle
-following at the ego's speed shows on one side as a shift of one whole step.
+5 cm steps; points 4-30 m away, more than 1.3 m below the sensor's height of KITTI's
+1.73 m left out as ground, within 25 deg of the seam). Moving objects near the seam
+show on one side only.
 
   scripts/seam_check.py PCD_FOLDER POSES_KITTI [--seam-deg 180] [--stride 1] [--distort]
 
-PCD_FOLDER holds binary PCDs whose first fields are float x y z and a fourth float
-(KITTI's layout); POSES_KITTI is the odometry's poses_kitti.txt of the same scans
+PCD_FOLDER holds binary PCDs of four float fields, x y z first (KITTI's layout), named
+in scan order by their numbers; POSES_KITTI is the odometry's poses_kitti.txt of the same scans
 (pcl_rast_odometry -deskew off). --distort skews each scan as a raw sweep of a
-clockwise head stamped at its forward column would be, to see what the check finds on
-one. Plain Python, no packages: about 10 s a pair.
+clockwise head whose sweep starts and ends at --seam-deg would be, to see what the
+check finds on one. Plain Python, no packages: about 10 s a pair.
 """
 import argparse
 import math
 import os
+import re
 import struct
 
 
 def read_pcd_xyz(path):
     data = open(path, 'rb').read()
+    if b'DATA binary\n' not in data or b'FIELDS x y z' not in data:
+        raise SystemExit(f'{path}: not a binary PCD with fields x y z and a fourth float')
     start = data.index(b'DATA binary\n') + len(b'DATA binary\n')
     count = (len(data) - start) // 16
     return [struct.unpack_from('<fff', data, start + 16 * k) for k in range(count)]
@@ -56,7 +60,10 @@ def seam_side(p, seam_deg, width_deg=25.0):
 
 
 def best_shift(points, grid, cell):
-    """The x-shift of points that brings them nearest the grid's (truncated at 0.3 m)."""
+    """The x-shift of points that brings them nearest the grid's (truncated at 0.3 m),
+    or None without points."""
+    if not points:
+        return None
     best = None
     for step in range(-24, 25):
         dx = step * 0.05
@@ -85,8 +92,11 @@ def main():
     parser.add_argument('--stride', type=int, default=1)
     parser.add_argument('--distort', action='store_true')
     args = parser.parse_args()
+    if args.stride < 1:
+        raise SystemExit(f'--stride must be >= 1, got {args.stride}')
     poses = read_poses(args.poses)
-    files = sorted(f for f in os.listdir(args.folder) if f.endswith('.pcd'))
+    numeric = lambda f: [int(x) if x.isdigit() else x for x in re.split(r'(\d+)', f)]
+    files = sorted((f for f in os.listdir(args.folder) if f.endswith('.pcd')), key=numeric)
     if len(files) != len(poses):
         raise SystemExit(f'{len(files)} scans but {len(poses)} poses')
     cell = 0.3
@@ -95,9 +105,10 @@ def main():
         a = [p for p in read_pcd_xyz(os.path.join(args.folder, files[n])) if above(p, 30.0)]
         b = [p for p in read_pcd_xyz(os.path.join(args.folder, files[n + 1])) if above(p, 40.0)]
         rot, t = relative(poses[n], poses[n + 1])
-        if args.distort:  # tau in [-1/2, 1/2] sweep, 0 at the forward column
+        if args.distort:  # tau in [-1/2, 1/2] sweep, 0 opposite the seam
             def skew(p):
-                tau = -((math.degrees(math.atan2(p[1], p[0])) + 180.0) % 360.0 - 180.0) / 360.0
+                az = math.degrees(math.atan2(p[1], p[0])) - args.seam_deg + 180.0
+                tau = -((az + 180.0) % 360.0 - 180.0) / 360.0
                 return tuple(p[i] - t[i] * tau for i in range(3))
             a = [skew(p) for p in a]
         grid = {}
@@ -108,9 +119,10 @@ def main():
         for side in (-1, 1):
             pts = [p for p in a if seam_side(p, args.seam_deg) == side][::4]
             shifts[side] = (best_shift(pts, grid, cell), len(pts))
+        shown = {side: 'n/a' if v[0] is None else f'{v[0]:+.2f} m' for side, v in shifts.items()}
         print(f'frame {n}: step {math.sqrt(sum(x * x for x in t)):.2f} m, best x-shift before '
-              f'the seam {shifts[-1][0]:+.2f} m ({shifts[-1][1]} pts), after it '
-              f'{shifts[1][0]:+.2f} m ({shifts[1][1]} pts)', flush=True)
+              f'the seam {shown[-1]} ({shifts[-1][1]} pts), after it {shown[1]} '
+              f'({shifts[1][1]} pts)', flush=True)
 
 
 if __name__ == '__main__':

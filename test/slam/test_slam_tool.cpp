@@ -170,15 +170,15 @@ TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
   EXPECT_NE(readFile(log_).find("-no-revisit-culling"), std::string::npos);
 }
 
-/// -visibility-margin (issue 10, off by default) reaches the tracking of the SLAM as it
-/// reaches pcl_rast_odometry's: the summary records the value the odometry ran with.
-TEST_F(SlamTool, TheVisibilityMarginReachesTheTracking)
+/// -visibility-margin (issue 10, off by default) is handed to the SLAM's odometry as to
+/// pcl_rast_odometry's: the summary records the odometry parameters the run was made with.
+TEST_F(SlamTool, TheVisibilityMarginIsHandedToTheOdometry)
 {
   const fs::path out = dir_ / "out";
   const fs::path seq = sequenceDir();
   ASSERT_EQ(runTool("-input '" + seq.string() + "' -output '" + out.string() + "' -gt '" +
                         (seq / "poses.txt").string() +
-                        "' -software-render -threads off -visibility-margin 1",
+                        "' -software-render -visibility-margin 1",
                     log_),
             0)
       << readFile(log_);
@@ -187,7 +187,7 @@ TEST_F(SlamTool, TheVisibilityMarginReachesTheTracking)
   EXPECT_EQ(summary["frames"].get<int>(), 40);
   EXPECT_LT(summary["ate_rmse_m"].get<double>(), 1.0);
   ASSERT_EQ(runTool("-input '" + seq.string() + "' -output '" + out.string() +
-                        "' -software-render -threads off -last 3",
+                        "' -software-render -last 3",
                     log_),
             0)
       << readFile(log_);
