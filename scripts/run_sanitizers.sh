@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The sanitizer checks CI runs after the README's tests (issue 12), sized to keep the
-# whole CI well under 30 minutes on a slow 2-core machine (doc/slam.md, "CI time"):
+# whole CI under 30 minutes on a slow 2-core machine (doc/slam.md, "Fuzzing,
+# sanitizers and signal checks"):
 #   - asan: an ASan + UBSan build of the libraries and tools, and of the test programs
 #     that feed them hostile input, write and read files, spill and reload maps, run the
 #     tools and the SLAM end to end; their tests run but for the long simulated drives
@@ -8,9 +9,10 @@
 #     checks ASan cannot make (integer and shift UB, conversions, bool/enum loads,
 #     bounds, unreachable code); ASan itself catches the bad pointers that UBSan's
 #     costlier pointer checks would.
-#   - asan-full: the same build with UBSan's every check, of every test program, running
-#     the whole suite (as CI did until session 27). Run it before landing a change to
-#     memory-heavy code that the focused set does not reach.
+#   - asan-full: ASan with all of UBSan (gcc's undefined group and float-cast-overflow)
+#     on every test program, running the whole suite (as CI did until session 27). Run
+#     it before landing a change to memory-heavy code that the focused set does not
+#     reach.
 #   - tsan: a TSan build runs the threaded SLAM tests (RastSlam.* in threaded mode, the
 #     pcl_rast_slam tool, local mapping, the background placements of MapLocalization).
 # Every report halts its test (halt_on_error); the only suppressions are for the named
@@ -105,10 +107,10 @@ for kind in "${kinds[@]}"; do
       # user would (lying files, signals, full disks, sessions, feature clouds as PCD),
       # keep memory of their own (spill file, map tiles, appearance index, voxel
       # hashes, visibility image, the render), run hand-vectorized code (motion
-      # compensation), or run the whole SLAM and its tools. Not here: the simulator's tests (it is uninstrumented), the
-      # accuracy tests of long simulated drives, localization and session merging
-      # beyond what their tools' tests run, the compile-only header check and the
-      # doc example.
+      # compensation), or run the whole SLAM and its tools. Not here: the simulator's
+      # tests (it is uninstrumented), the accuracy tests of long simulated drives,
+      # localization and session merging beyond what their tools' tests run, the
+      # compile-only header check and the doc example.
       targets=(io_test_hostile_inputs slam_test_sequence_reader slam_test_pose_io
                slam_test_pose_graph slam_test_session slam_test_map_storage
                tools_test_hostile_tools tools_test_output_sets tools_test_cli

@@ -13,8 +13,8 @@ show on one side only.
   scripts/seam_check.py PCD_FOLDER POSES_KITTI [--seam-deg 180] [--stride 1] [--distort]
 
 PCD_FOLDER holds binary PCDs of four float fields, x y z first (KITTI's layout), named
-in scan order by their numbers; POSES_KITTI is the odometry's poses_kitti.txt of the same scans
-(pcl_rast_odometry -deskew off). --distort skews each scan as a raw sweep of a
+in scan order by their numbers; POSES_KITTI is the odometry's poses_kitti.txt of the
+same scans (pcl_rast_odometry -deskew off). --distort skews each scan as a raw sweep of a
 clockwise head whose sweep starts and ends at --seam-deg would be, to see what the
 check finds on one. Plain Python, no packages: about 10 s a pair.
 """
@@ -100,10 +100,13 @@ def main():
     if len(files) != len(poses):
         raise SystemExit(f'{len(files)} scans but {len(poses)} poses')
     cell = 0.3
+
+    def structure(n, max_range):  # scan n's points off the ground within max_range
+        return [p for p in read_pcd_xyz(os.path.join(args.folder, files[n]))
+                if p[2] > -1.3 and 4.0 < math.hypot(p[0], p[1]) < max_range]
+
     for n in range(0, len(files) - 1, args.stride):
-        above = lambda p, r: p[2] > -1.3 and 4.0 < math.hypot(p[0], p[1]) < r
-        a = [p for p in read_pcd_xyz(os.path.join(args.folder, files[n])) if above(p, 30.0)]
-        b = [p for p in read_pcd_xyz(os.path.join(args.folder, files[n + 1])) if above(p, 40.0)]
+        a, b = structure(n, 30.0), structure(n + 1, 40.0)
         rot, t = relative(poses[n], poses[n + 1])
         if args.distort:  # tau in [-1/2, 1/2] sweep, 0 opposite the seam
             def skew(p):
