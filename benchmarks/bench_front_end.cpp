@@ -209,7 +209,8 @@ void
 processFrames(benchmark::State& state,
               const rast::OdometryParams& params,
               const Drive& drive,
-              bool with_times = false)
+              bool with_times = false,
+              bool lookahead = false)
 {
   auto odometry = std::make_unique<rast::Odometry>(params);
   std::vector<rast::OdometryTimings> timings;
@@ -222,8 +223,18 @@ processFrames(benchmark::State& state,
       i = 0;
       state.ResumeTiming();
     }
-    const auto r = odometry->processFrame(
-        drive.scans[i], drive.stamps[i], index, with_times ? drive.times[i] : no_times);
+    const auto& times = with_times ? drive.times[i] : no_times;
+    const auto r =
+        lookahead && i + 1 < drive.scans.size()
+            ? odometry->processFrame(drive.scans[i],
+                                     drive.stamps[i],
+                                     index,
+                                     times,
+                                     {drive.scans[i + 1],
+                                      drive.stamps[i + 1],
+                                      index + 1,
+                                      with_times ? drive.times[i + 1] : no_times})
+            : odometry->processFrame(drive.scans[i], drive.stamps[i], index, times);
     ++i;
     ++index;
     if (i > 1) // the first frame of a run only builds the map
@@ -263,6 +274,18 @@ BM_ProcessFrame(benchmark::State& state)
   processFrames(state, rast::OdometryParams());
 }
 BENCHMARK(BM_ProcessFrame)->Unit(benchmark::kMillisecond)->Iterations(210);
+
+/// BM_ProcessFrame with the look-ahead: the next scan's ground removal, raster and ORB
+/// on a second thread (these scans have no times: the whole of it). Compare the wall
+/// time ("Time"), not the main thread's CPU time.
+void
+BM_ProcessFrameLookahead(benchmark::State& state)
+{
+  if (skipWithoutData(state))
+    return;
+  processFrames(state, rast::OdometryParams(), realDrive(), false, true);
+}
+BENCHMARK(BM_ProcessFrameLookahead)->Unit(benchmark::kMillisecond)->Iterations(210);
 
 /// Without the nearest-neighbour re-match of weak features (its cost, side by side).
 void
@@ -315,6 +338,21 @@ BM_ProcessFrameDeskewAzimuth(benchmark::State& state)
   processFrames(state, params);
 }
 BENCHMARK(BM_ProcessFrameDeskewAzimuth)->Unit(benchmark::kMillisecond)->Iterations(210);
+
+/// ... with the look-ahead: a compensated scan's raster and ORB wait for its own call,
+/// only the ground removal and the dense source's choice run ahead.
+void
+BM_ProcessFrameDeskewAzimuthLookahead(benchmark::State& state)
+{
+  if (skipWithoutData(state))
+    return;
+  rast::OdometryParams params;
+  params.deskew.mode = rast::DeskewMode::kOn;
+  processFrames(state, params, realDrive(), false, true);
+}
+BENCHMARK(BM_ProcessFrameDeskewAzimuthLookahead)
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(210);
 
 /// The same without the second pass (compensation with the prior's motion only): the
 /// second pass's cost, side by side.

@@ -121,7 +121,7 @@ for kind in "${kinds[@]}"; do
                segmentation_test_sac_ground_removal features_test_orb_signature
                registration_test_raster_orb_registration registration_test_dense_core
                slam_test_deskew slam_test_odometry_visibility slam_test_odometry_degenerate
-               visualization_test_map_render)
+               slam_test_odometry_lookahead visualization_test_map_render)
       # Their tests, by the label test/CMakeLists.txt gives each test: its program. A
       # program left out is never run, not even from an old binary in the build folder.
       select=(-L "^($(IFS='|'; echo "${targets[*]}"))\$")
@@ -169,9 +169,10 @@ for kind in "${kinds[@]}"; do
       "-DPCL_RAST_SIMULATOR_FLAGS=$simulator_flags"
     # The tests below run one program, pcl_rast_slam: the other tools are not built.
     # MapLocalization's background placements (a thread per attempt) are checked by the
-    # test that backs off: the only one of its file that starts them.
+    # test that backs off: the only one of its file that starts them. The odometry's
+    # look-ahead (a thread per scan) by its own tests.
     targets=(slam_test_rast_slam slam_test_slam_tool slam_test_local_mapping
-             slam_test_session_localizer pcl_rast_slam)
+             slam_test_session_localizer slam_test_odometry_lookahead pcl_rast_slam)
     # The build runs the tests to list them (gtest_discover_tests): same options.
     export TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$supp/tsan.supp"
     cmake --build "$build" -j"$jobs" --target "${targets[@]}" > "$build.build.log" 2>&1 ||
@@ -183,7 +184,7 @@ for kind in "${kinds[@]}"; do
     deterministic_only+='|MapPointsAreBuiltOnlyForABundleAdjustment|SpillingToDiskChangesNothingButMemory'
     deterministic_only+='|RevisitsDoNotGrowTheLoopDatabase|LoopCorrectionGoesToTheYoungMapsEdges'
     (cd "$build" && ctest -j"$jobs" --output-on-failure --timeout 1800 \
-       -R '^((RastSlam|SlamTool|LocalMapping|BundleAdjustment)\.|MapLocalization\.PlacementsBackOff)' \
+       -R '^((RastSlam|SlamTool|LocalMapping|BundleAdjustment|OdometryLookahead)\.|MapLocalization\.PlacementsBackOff)' \
        -E "^RastSlam\.($deterministic_only)\$")
     unset TSAN_OPTIONS
     ;;

@@ -257,11 +257,22 @@ Odometry::Impl::predict(double timestamp_s) const
 }
 
 double
-Odometry::Impl::frameInterval(double timestamp_s) const
+Odometry::Impl::interval(double t0, double t1) const
 {
-  const double dt = (timestamp_s - t_last) * params.deskew.seconds_per_timestamp;
+  const double dt = (t1 - t0) * params.deskew.seconds_per_timestamp;
   // Without usable timestamps assume 10 Hz; cap at 5 s.
   return std::isfinite(dt) && dt > 1e-6 ? std::min(dt, 5.0) : 0.1;
+}
+
+Odometry::Impl::SweepMotion
+Odometry::Impl::sweepMotion(double timestamp_s) const
+{
+  SweepMotion m;
+  m.dt = frameInterval(timestamp_s);
+  m.T_motion = T_world_last.inverse() * predict(timestamp_s);
+  if (num_poses >= 2)
+    m.xi = logSE3(m.T_motion) / m.dt;
+  return m;
 }
 
 void
@@ -488,22 +499,154 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
                        std::size_t frame_index,
                        const std::vector<float>& point_times_s)
 {
-  impl_->checkIndex(frame_index);
+  return impl_->process(cloud, timestamp_s, frame_index, point_times_s, nullptr);
+}
+
+OdometryFrameResult
+Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                       double timestamp_s,
+                       std::size_t frame_index,
+                       const std::vector<float>& point_times_s,
+                       const OdometryInput& next)
+{
+  if (next.frame_index <= frame_index)
+    throw std::invalid_argument("Odometry: the look-ahead scan's frame index " +
+                                std::to_string(next.frame_index) +
+                                " is not after this frame's " +
+                                std::to_string(frame_index));
+  return impl_->process(cloud, timestamp_s, frame_index, point_times_s, &next);
+}
+
+Odometry::Impl::Prepared
+Odometry::Impl::prepare(FrontEnd& front,
+                        const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
+                        const std::vector<float>& given_times,
+                        bool keep_times,
+                        double frame_interval_s,
+                        const SweepMotion* motion,
+                        OdometryFrameResult result) const
+{
+  auto frame = std::make_unique<Frame>(input);
+  if (keep_times)
+    frame->own_times = given_times;
+  const std::vector<float>& point_times = keep_times ? frame->own_times : given_times;
+  static const std::vector<float> kNoTimes;
+  const bool times_usable =
+      point_times.empty() || usableTimes(point_times, input->size());
+  if (!times_usable)
+    frame->times_message = std::to_string(point_times.size()) + " point times for " +
+                           std::to_string(input->size()) +
+                           " points, or not finite or beyond +-1 s: ignored";
+  // 0. Enough finite points within the range limits? (Ground removal and raster skip
+  //    non-finite points themselves; the range limits apply to the dense steps.)
+  const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
+  const std::size_t num_usable = odometry_detail::countInRange(frame->input, in_range);
+  if (num_usable < 10) {
+    frame->usable = false;
+    result.status = TrackingStatus::kSkipped;
+    result.degraded = true;
+    result.message = "no usable points (" + std::to_string(num_usable) + " of " +
+                     std::to_string(frame->input.size()) +
+                     " finite and in range): constant-velocity prediction";
+    return {std::move(frame), std::move(result)};
+  }
+  // 0b. The times of the motion compensation (deskew.h).
+  const pcl::StopWatch watch;
+  if (auto times = sweepTimes(frame->input,
+                              times_usable ? point_times : kNoTimes,
+                              frame_interval_s,
+                              result.deskew_times))
+    frame->times.emplace(std::move(*times)); // (PointTimes refers to the cloud)
+  result.timings.deskew_ms = watch.getTime();
+
+  removeGround(front, *frame, result); // 1
+  if (motion || !frame->times)         // without times there is nothing to compensate
+    finishPrepare(front, *frame, result, motion);
+  return {std::move(frame), std::move(result)};
+}
+
+void
+Odometry::Impl::finishPrepare(FrontEnd& front,
+                              Frame& frame,
+                              OdometryFrameResult& result,
+                              const SweepMotion* motion) const
+{
+  // 0c. The compensation's motion: the previous frame's. Every step below uses
+  //     compensated points: the non-ground points (raster, features) and the dense
+  //     step's source points right away, the whole scan only when a key-frame or the
+  //     local map keeps it (keptCloud).
+  if (frame.times && motion && motion->xi) {
+    frame.xi_sweep = motion->xi;
+    frame.T_motion_deskew = motion->T_motion;
+  }
+  result.deskew_applied = frame.xi_sweep.has_value();
+  extractFeatures(front, frame, result); // 2-3
+  frame.extracted = true;
+}
+
+OdometryFrameResult
+Odometry::Impl::process(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                        double timestamp_s,
+                        std::size_t frame_index,
+                        const std::vector<float>& point_times,
+                        const OdometryInput* next)
+{
+  checkIndex(frame_index);
   const pcl::StopWatch watch;
   OdometryFrameResult result;
   result.frame_index = frame_index;
   result.timestamp_s = timestamp_s;
+  // The look-ahead of the call before: this scan's steps 0-3 when it was this scan.
+  // Waited for before the next one starts: the two share front_end_ahead.
+  std::optional<Ahead> mine = std::exchange(ahead, std::nullopt);
+  if (mine)
+    mine->job.wait();
+  if (mine && (mine->cloud != cloud.get() || mine->frame_index != frame_index))
+    mine.reset(); // another scan came: dropped
+  if (next && next->cloud) {
+    // Started before this frame is tracked: what needs its motion (the compensation of
+    // a scan with times, and the raster and ORB of the compensated points) waits.
+    const double next_interval = interval(timestamp_s, next->timestamp_s);
+    OdometryFrameResult next_result;
+    next_result.frame_index = next->frame_index;
+    next_result.timestamp_s = next->timestamp_s;
+    next_result.extracted_ahead = true;
+    ahead.emplace();
+    ahead->cloud = next->cloud.get();
+    ahead->frame_index = next->frame_index;
+    std::packaged_task<Prepared()> task([this,
+                                         input = next->cloud,
+                                         times = next->point_times_s,
+                                         next_interval,
+                                         next_result = std::move(next_result)] {
+      return prepare(
+          front_end_ahead, input, times, true, next_interval, nullptr, next_result);
+    });
+    ahead->job = task.get_future();
+    if (!ahead_thread)
+      ahead_thread = std::make_unique<AheadThread>();
+    ahead_thread->tasks.push(std::move(task));
+  }
   if (!cloud)
-    return impl_->skip(timestamp_s, frame_index, "null cloud");
+    return skip(timestamp_s, frame_index, "null cloud");
   try {
-    static const std::vector<float> kNoTimes;
-    const bool times_usable =
-        point_times_s.empty() || usableTimes(point_times_s, cloud->size());
-    result = impl_->track(cloud, times_usable ? point_times_s : kNoTimes, result);
-    if (!times_usable)
-      result.message += "; " + std::to_string(point_times_s.size()) +
-                        " point times for " + std::to_string(cloud->size()) +
-                        " points, or not finite or beyond +-1 s: ignored";
+    const SweepMotion motion = sweepMotion(timestamp_s);
+    Prepared prepared =
+        mine ? mine->job.get()
+             : prepare(front_end, cloud, point_times, false, motion.dt, &motion, result);
+    if (prepared.frame->usable) {
+      if (!prepared.frame->extracted)
+        finishPrepare(front_end, *prepared.frame, prepared.result, &motion);
+      // The dense step's source points, here on the caller's thread: about as much
+      // work is left to it as to the look-ahead's.
+      const pcl::StopWatch source_watch;
+      selectDenseSource(*prepared.frame);
+      makeDenseSource(*prepared.frame, prepared.result);
+      prepared.result.timings.refine_ms = source_watch.getTime();
+    }
+    result = track(*prepared.frame, std::move(prepared.result));
+    if (!prepared.frame->times_message.empty())
+      result.message += "; " + prepared.frame->times_message;
   } catch (const std::exception& e) {
     // Bad data must not stop the odometry: report it and predict.
     result = OdometryFrameResult();
@@ -511,17 +654,17 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
     result.timestamp_s = timestamp_s;
     result.status = TrackingStatus::kConstantVelocity;
     result.degraded = true;
-    result.T_world_lidar = impl_->predict(timestamp_s);
+    result.T_world_lidar = predict(timestamp_s);
     result.message =
         std::string("tracking failed: ") + e.what() + ": constant-velocity prediction";
   }
   if (!result.keyframe) {
-    result.reference_keyframe = impl_->keyframe ? impl_->keyframe->id : 0;
+    result.reference_keyframe = keyframe ? keyframe->id : 0;
     result.T_keyframe_lidar =
-        composePoses(impl_->T_world_keyframe.inverse(), result.T_world_lidar);
+        composePoses(T_world_keyframe.inverse(), result.T_world_lidar);
   }
   result.timings.total_ms = watch.getTime();
-  impl_->commitPose(result);
+  commitPose(result);
   return result;
 }
 

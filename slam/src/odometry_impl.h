@@ -7,7 +7,9 @@
 
 #include "odometry_local_map.h"
 #include "stage_util.h"
+#include "work_queue.h"
 
+#include <future>
 #include <memory>
 #include <optional>
 #include <pcl/features/orb_raster_features.h>
@@ -16,6 +18,7 @@
 #include <pcl/slam/deskew.h>
 #include <pcl/slam/odometry.h>
 #include <string>
+#include <thread>
 #include <vector>
 
 namespace pcl {
@@ -150,15 +153,25 @@ Pose3d planarFromFeatures(const Pose3d& T_world_last,
 
 struct Odometry::Impl
 {
-  explicit Impl(const OdometryParams& p) : params(p), ground(p.ground), map(p.dense)
-  {
-    orb.setParams(p.orb);
-    orb.setRasterParams(p.raster);
-  }
+  explicit Impl(const OdometryParams& p)
+      : params(p), front_end(p), front_end_ahead(p), map(p.dense)
+  {}
 
-  OdometryParams params;
-  SACGroundRemoval<pcl::PointXYZI> ground;
-  OrbRasterFeatureEstimator<pcl::PointXYZI> orb;
+  /// The stateless extractors of steps 1-3: one for the frames prepared in order, one
+  /// for the look-ahead's thread (the two run at the same time).
+  struct FrontEnd
+  {
+    explicit FrontEnd(const OdometryParams& p) : ground(p.ground)
+    {
+      orb.setParams(p.orb);
+      orb.setRasterParams(p.raster);
+    }
+    SACGroundRemoval<pcl::PointXYZI> ground;
+    OrbRasterFeatureEstimator<pcl::PointXYZI> orb;
+  };
+
+  const OdometryParams params;
+  FrontEnd front_end, front_end_ahead;
   VoxelPlaneMap map;
   int map_scans = 0; ///< scans inserted into the map so far
   /// The scan that started the map, while it could not be motion-compensated yet (no
@@ -201,11 +214,24 @@ struct Odometry::Impl
 
   Pose3d predict(double timestamp_s) const;
   /// Seconds since the last frame (timestamps scaled by deskew.seconds_per_timestamp).
-  double frameInterval(double timestamp_s) const;
+  double frameInterval(double timestamp_s) const { return interval(t_last, timestamp_s); }
+  /// Seconds from \a t0 to \a t1 (scaled timestamps); 0.1 when not positive or not
+  /// finite, at most 5.
+  double interval(double t0, double t1) const;
   void checkIndex(std::size_t frame_index);
   void commitPose(const OdometryFrameResult& result);
   OdometryFrameResult
   skip(double timestamp_s, std::size_t frame_index, const std::string& reason);
+  /// The motion a scan's compensation assumes before it is tracked (sweepMotion).
+  struct SweepMotion
+  {
+    double dt = 0.1; ///< the scan's frame interval [s] (the azimuth times' period)
+    std::optional<Twist> xi;              ///< none before the run has two poses
+    Pose3d T_motion = Pose3d::Identity(); ///< the prior's motion over dt
+  };
+  /// For a scan at \a timestamp_s, from the last two poses: the prior's motion.
+  SweepMotion sweepMotion(double timestamp_s) const;
+
   /// Everything the steps of one frame's tracking share.
   struct Frame
   {
@@ -215,11 +241,21 @@ struct Odometry::Impl
     const pcl::StopWatch watch; ///< since the frame came in
     pcl::PointCloud<pcl::PointXYZI>::ConstPtr input_ptr;
     const pcl::PointCloud<pcl::PointXYZI>& input;
+    /// Enough finite points within the range limits (else the frame is skipped).
+    bool usable = true;
+    /// Why the point times given were not used (empty: they were, or none were given).
+    std::string times_message;
+    /// The point times, when the frame keeps its own copy (prepared ahead: the
+    /// caller's outlive only the call).
+    std::vector<float> own_times;
     Pose3d T_world_prior = Pose3d::Identity();        ///< constant-velocity prediction
     Pose3d T_motion_prior = Pose3d::Identity();       ///< its motion from the last frame
     double dt = 0.1;                                  ///< frameInterval [s]
     std::optional<odometry_detail::PointTimes> times; ///< for the motion compensation
     std::optional<Twist> xi_sweep; ///< the motion the kept points are compensated with
+    /// The motion the first compensation assumed over the frame (the second pass
+    /// compares the estimate with it).
+    Pose3d T_motion_deskew = Pose3d::Identity();
     std::shared_ptr<RasterFeatureSet> features;
     std::vector<int> source_indices; ///< the dense step's source points ...
     Points3f source;                 ///< ... compensated
@@ -230,8 +266,13 @@ struct Odometry::Impl
     odometry_detail::VisibilityImage image;
     /// ... and whether the prior is tight enough to test against it (useVisibility).
     bool check_visibility = false;
-    /// The scan's ground plane (normal up) with the image; zero without a ground.
+    /// The scan's ground plane (normal up); zero without a ground.
     Eigen::Vector4f ground_plane = Eigen::Vector4f::Zero();
+    /// Step 1: the points off the ground, and the levelling of the sensor's tilt.
+    pcl::Indices non_ground_indices;
+    Eigen::Isometry3f T_level_lidar = Eigen::Isometry3f::Identity();
+    /// Steps 2-3 are done (features and the dense source points, compensated).
+    bool extracted = false;
   };
   /// The outcome of trackFeatures.
   struct FeatureTrack
@@ -244,20 +285,57 @@ struct Odometry::Impl
     std::vector<Pose3d> weak_estimates;
   };
 
-  /// One frame, the steps below in order (odometry_tracking.cpp).
-  OdometryFrameResult track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
-                            const std::vector<float>& point_times,
-                            OdometryFrameResult result);
-  /// Steps 1-3: ground removal, raster of the (compensated) non-ground points, ORB.
-  void extractFeatures(Frame& frame, OdometryFrameResult& result);
+  /// A frame whose steps 0-3 are done (prepare), with the result they began.
+  struct Prepared
+  {
+    std::unique_ptr<Frame> frame;
+    OdometryFrameResult result;
+  };
+  /// processFrame: \a next (may be null) is prepared on a second thread meanwhile.
+  OdometryFrameResult process(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                              double timestamp_s,
+                              std::size_t frame_index,
+                              const std::vector<float>& point_times,
+                              const OdometryInput* next);
+  /// Steps 0-1 of a scan (range check, point times, ground removal) and the choice of
+  /// its dense source points, then, with \a motion or when the scan has no times to
+  /// compensate, steps 2-3 (finishPrepare). No state of the tracking is read or written
+  /// (only \a front and params): the look-ahead runs it on its thread. \a point_times
+  /// are checked here (unusable ones are ignored); with \a keep_times the frame keeps a
+  /// copy of them, else they must outlive the frame. \a frame_interval_s is the period
+  /// of azimuth times.
+  Prepared prepare(FrontEnd& front,
+                   const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
+                   const std::vector<float>& point_times,
+                   bool keep_times,
+                   double frame_interval_s,
+                   const SweepMotion* motion,
+                   OdometryFrameResult result) const;
+  /// Steps 2-3 of a prepared frame: the non-ground and dense source points compensated
+  /// with \a motion (when the scan has times and the motion a velocity), the raster,
+  /// ORB.
+  void finishPrepare(FrontEnd& front,
+                     Frame& frame,
+                     OdometryFrameResult& result,
+                     const SweepMotion* motion) const;
+  /// One prepared frame, the steps below in order (odometry_tracking.cpp).
+  OdometryFrameResult track(Frame& frame, OdometryFrameResult result);
+  /// Step 1: ground removal (and the levelling transform).
+  void removeGround(FrontEnd& front, Frame& frame, OdometryFrameResult& result) const;
+  /// Steps 2-3: raster of the (compensated, levelled) non-ground points, ORB.
+  void extractFeatures(FrontEnd& front, Frame& frame, OdometryFrameResult& result) const;
   /// Step 4: match the key-frame (else the previous frame, else nearest neighbours) and
   /// rigid RANSAC.
   FeatureTrack trackFeatures(const Frame& frame, OdometryFrameResult& result) const;
   RigidRansacResult fitFeatures(const Frame& frame,
                                 const RasterFeatureSet& target,
                                 const pcl::Correspondences& matches) const;
-  /// The voxelized, subsampled and compensated source points of the dense step.
+  /// The dense step's source points: voxelized and subsampled (indices) ...
+  void selectDenseSource(Frame& frame) const;
+  /// ... then copied, compensated.
   void makeDenseSource(Frame& frame, OdometryFrameResult& result) const;
+  /// The source points that moved in, dropped (visibility_margin_m; track).
+  void dropMovedIn(Frame& frame, OdometryFrameResult& result) const;
   /// Step 5 with features: dense refinement from their estimate, anchored to them
   /// (strong, unless far from the prior where the scan is degenerate) or to the prior
   /// (weak), and the two cross-checks.
@@ -364,6 +442,36 @@ struct Odometry::Impl
                              const pcl::PointCloud<pcl::PointXYZI>& cloud);
   void insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud,
                      const Pose3d& T_world_lidar);
+
+  /// The look-ahead's scan being prepared on its thread (front_end_ahead).
+  struct Ahead
+  {
+    const pcl::PointCloud<pcl::PointXYZI>* cloud = nullptr;
+    std::size_t frame_index = 0;
+    std::future<Prepared> job;
+  };
+  std::optional<Ahead> ahead;
+  /// The look-ahead's thread, started by the first look-ahead and kept: a thread
+  /// started per scan began about 1.4 ms late (measured in bench_front_end), on the
+  /// core of the thread that started it.
+  struct AheadThread
+  {
+    AheadThread()
+        : thread([this] {
+            for (std::packaged_task<Prepared()> task; tasks.pop(task);)
+              task();
+          })
+    {}
+    ~AheadThread()
+    {
+      tasks.close(); // a task queued is still run
+      thread.join();
+    }
+    slam_detail::WorkQueue<std::packaged_task<Prepared()>> tasks;
+    std::thread thread; ///< after tasks: starts once the queue exists
+  };
+  /// Last member: destroyed first, its thread joined before anything it uses goes.
+  std::unique_ptr<AheadThread> ahead_thread;
 };
 
 } // namespace rast

@@ -41,43 +41,18 @@ odometry_detail::planarFromFeatures(const Pose3d& T_world_last,
 }
 
 OdometryFrameResult
-Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr,
-                      const std::vector<float>& point_times,
-                      OdometryFrameResult result)
+Odometry::Impl::track(Frame& frame, OdometryFrameResult result)
 {
-  Frame frame(input_ptr);
   frame.prior_overruled_before = std::exchange(prior_overruled_features, false);
   frame.T_world_prior = predict(result.timestamp_s);
   result.T_world_lidar = frame.T_world_prior;
   result.reference_keyframe = keyframe ? keyframe->id : 0;
-
-  // 0. Enough finite points within the range limits? (Ground removal and raster skip
-  //    non-finite points themselves; the range limits apply to the dense steps.)
-  const RangeFilter in_range(params.min_range_m, params.max_range_m);
-  const std::size_t num_usable = countInRange(frame.input, in_range);
-  if (num_usable < 10) {
-    result.status = TrackingStatus::kSkipped;
-    result.degraded = true;
-    result.message = "no usable points (" + std::to_string(num_usable) + " of " +
-                     std::to_string(frame.input.size()) +
-                     " finite and in range): constant-velocity prediction";
+  if (!frame.usable) // step 0 (prepare): status and message say why
     return result;
-  }
-  // 0b. Motion compensation (deskew.h) with the previous frame's motion. Every step
-  //     below uses compensated points: the non-ground points (raster, features) and the
-  //     dense step's source points right away, the whole scan only when a key-frame or
-  //     the local map keeps it (keptCloud).
-  pcl::StopWatch watch;
   frame.dt = frameInterval(result.timestamp_s);
-  if (auto times = sweepTimes(frame.input, point_times, frame.dt, result.deskew_times))
-    frame.times.emplace(std::move(*times)); // (PointTimes refers to the cloud)
   frame.T_motion_prior = T_world_last.inverse() * frame.T_world_prior;
-  if (frame.times && num_poses >= 2)
-    frame.xi_sweep = logSE3(frame.T_motion_prior) / frame.dt;
-  result.deskew_applied = frame.xi_sweep.has_value();
-  result.timings.deskew_ms = watch.getTime();
-
-  extractFeatures(frame, result); // 1-3
+  const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr = frame.input_ptr;
+  pcl::StopWatch watch;
 
   // The first usable frame starts the map.
   if (!keyframe) {
@@ -100,7 +75,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
 
   const FeatureTrack feature_track = trackFeatures(frame, result); // 4
   // 4b. What moved out of the map's voxels, as this scan sees it from the prior, does
-  //     not pair this frame (moving objects; makeDenseSource drops what moved in).
+  //     not pair this frame (moving objects; dropMovedIn drops what moved in).
   frame.check_visibility = useVisibility(frame);
   const pcl::StopWatch hide_watch;
   result.hidden_map_voxels =
@@ -115,12 +90,12 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
   //    prior itself.
   watch.reset();
   if (params.registration.refine || !feature_track.ok)
-    makeDenseSource(frame, result);
+    dropMovedIn(frame, result);
   if (feature_track.ok)
     prior_overruled_features = trackDense(frame, feature_track, result);
   else
     searchHypotheses(frame, feature_track, result);
-  result.timings.refine_ms = watch.getTime();
+  result.timings.refine_ms += watch.getTime(); // (+ the source points, prepare)
 
   // 5b. Second pass of the motion compensation with the estimated motion; 5c. the local
   //     map rebuilt from the first scan, compensated, once its motion is known.
@@ -129,7 +104,7 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
                      *frame.times,
                      frame.source_indices,
                      frame.dt,
-                     frame.T_motion_prior,
+                     frame.T_motion_deskew,
                      result,
                      *frame.xi_sweep);
   if (first_scan)
@@ -141,19 +116,33 @@ Odometry::Impl::track(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr
 }
 
 void
-Odometry::Impl::extractFeatures(Frame& frame, OdometryFrameResult& result)
+Odometry::Impl::removeGround(FrontEnd& front,
+                             Frame& frame,
+                             OdometryFrameResult& result) const
 {
-  // 1. Ground removal (paper sec. 4), optionally levelling the non-ground cloud. On the
-  //    raw scan: the sweep's motion moves ground points along the ground plane, and
-  //    only the plane is kept.
-  pcl::StopWatch watch;
+  // 1. Ground removal (paper sec. 4). On the raw scan: the sweep's motion moves ground
+  //    points along the ground plane, and only the plane is kept.
+  const pcl::StopWatch watch;
+  SACGroundRemoval<pcl::PointXYZI>& ground = front.ground;
   ground.setInputCloud(frame.input_ptr);
-  pcl::Indices non_ground_indices;
-  ground.filter(non_ground_indices);
+  ground.filter(frame.non_ground_indices);
   result.ground_found = ground.groundFound();
+  frame.T_level_lidar = ground.getLevellingTransform();
+  if (result.ground_found)
+    frame.ground_plane = ground.getGroundPlane();
   result.timings.ground_ms = watch.getTime();
+}
+
+void
+Odometry::Impl::extractFeatures(FrontEnd& front,
+                                Frame& frame,
+                                OdometryFrameResult& result) const
+{
+  OrbRasterFeatureEstimator<pcl::PointXYZI>& orb = front.orb;
+  const pcl::Indices& non_ground_indices = frame.non_ground_indices;
+  pcl::StopWatch watch;
   // The levelled frame, where the sensor is tilted (params.ground.level_cloud).
-  const Eigen::Isometry3f T_level_lidar = ground.getLevellingTransform();
+  const Eigen::Isometry3f& T_level_lidar = frame.T_level_lidar;
   const bool levelled = params.ground.level_cloud && result.ground_found &&
                         !T_level_lidar.isApprox(Eigen::Isometry3f::Identity());
   // The non-ground points, compensated (one copy of them either way), then levelled.
@@ -172,9 +161,8 @@ Odometry::Impl::extractFeatures(Frame& frame, OdometryFrameResult& result)
     const pcl::StopWatch w;
     frame.image = VisibilityImage(*non_ground);
     // The image holds no ground, so where a ray met the ground it cannot tell: the
-    // moving-in test leaves points near the ground alone (the plane's normal points up).
-    if (result.ground_found)
-      frame.ground_plane = ground.getGroundPlane();
+    // moving-in test leaves points near the ground alone (frame.ground_plane, its
+    // normal up; zero without a ground).
     result.timings.visibility_ms = w.getTime(); // + hiding the map's voxels (track)
   }
   if (levelled)
@@ -279,13 +267,18 @@ Odometry::Impl::trackFeatures(const Frame& frame, OdometryFrameResult& result) c
 }
 
 void
-Odometry::Impl::makeDenseSource(Frame& frame, OdometryFrameResult& result) const
+Odometry::Impl::selectDenseSource(Frame& frame) const
 {
-  // Subsample the voxel indices, then copy only the points kept.
+  // Subsample the voxel indices (the points are copied by makeDenseSource).
   const RangeFilter in_range(params.min_range_m, params.max_range_m);
   frame.source_indices = strideSubsample(
       voxelDownsampleIndices(frame.input, params.dense.source_voxel_size_m, in_range),
       static_cast<std::size_t>(params.dense.max_source_points));
+}
+
+void
+Odometry::Impl::makeDenseSource(Frame& frame, OdometryFrameResult& result) const
+{
   if (frame.xi_sweep) {
     const pcl::StopWatch t0;
     frame.source = toPoints(
@@ -294,6 +287,11 @@ Odometry::Impl::makeDenseSource(Frame& frame, OdometryFrameResult& result) const
   } else {
     frame.source = toPoints(frame.input, frame.source_indices);
   }
+}
+
+void
+Odometry::Impl::dropMovedIn(Frame& frame, OdometryFrameResult& result) const
+{
   if (frame.check_visibility && !keyframe_image.empty()) {
     // The points that moved in: the key-frame's scan saw past where the prior puts them
     // (only above the ground: without a ground plane, none).

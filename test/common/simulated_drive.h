@@ -1,14 +1,17 @@
 #pragma once
 /// \file simulated_drive.h
-/// \brief The short simulated drive that the tool tests run on.
+/// \brief The simulated drives the tests run on: a short one on disk for the tool tests,
+/// simulators on generated paths, and their scans in memory.
 
 #include "temp_cleanup.h"
 
 #include <filesystem>
 #include <memory>
+#include <pcl/rast/rigid_pose.h>
 #include <pcl/simulation/lidar_simulator.h>
 #include <string>
 #include <unistd.h>
+#include <vector>
 
 namespace pcl_rast_test {
 
@@ -36,9 +39,14 @@ simulateStraightDrive(const std::string& tag, std::uint64_t seed = 5)
 }
 
 /// \brief A default simulator (HDL-64, two ray-casting threads) on a generated path of
-/// \a frames poses of \a type; \a revisit is PathParams::revisit_fraction.
+/// \a frames poses of \a type; \a revisit is PathParams::revisit_fraction; raw sweeps
+/// (each column cast from the pose at its firing time) with \a raw_sweep.
 inline std::unique_ptr<pcl::rast::LidarSimulator>
-pathSimulator(pcl::rast::PathType type, int frames, double revisit, std::uint64_t seed)
+pathSimulator(pcl::rast::PathType type,
+              int frames,
+              double revisit,
+              std::uint64_t seed,
+              bool raw_sweep = false)
 {
   pcl::rast::PathParams path;
   path.type = type;
@@ -47,7 +55,34 @@ pathSimulator(pcl::rast::PathType type, int frames, double revisit, std::uint64_
   pcl::rast::LidarSimulatorParams params;
   params.seed = seed;
   params.num_threads = 2;
+  params.raw_sweep = raw_sweep;
   return std::make_unique<pcl::rast::LidarSimulator>(params, pcl::rast::generatePath(path));
+}
+
+/// \brief Every scan of a simulator in memory, with its point times and ground truth.
+struct SimulatedScans
+{
+  std::vector<pcl::PointCloud<pcl::PointXYZI>::ConstPtr> clouds;
+  std::vector<std::vector<float>> times; ///< per point, relative to the frame time [s]
+  std::vector<double> stamps;
+  pcl::rast::PoseVector gt; ///< in frame 0's LiDAR frame
+};
+
+inline SimulatedScans
+simulateScans(const pcl::rast::LidarSimulator& sim)
+{
+  SimulatedScans d;
+  const pcl::rast::Pose3d T0_inv = sim.sensorPose(0).inverse();
+  for (std::size_t i = 0; i < sim.numFrames(); ++i) {
+    auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    std::vector<float> times;
+    sim.simulateFrame(i, *cloud, &times);
+    d.clouds.push_back(cloud);
+    d.times.push_back(std::move(times));
+    d.stamps.push_back(sim.timestamp(i));
+    d.gt.push_back(T0_inv * sim.sensorPose(i));
+  }
+  return d;
 }
 
 } // namespace pcl_rast_test

@@ -4,14 +4,14 @@
 /// instantaneous scans of the same drive; compensating scans that need none costs
 /// accuracy, which is why -deskew auto leaves scans without a time field alone.
 
-#include <pcl/simulation/lidar_simulator.h>
-#include <pcl/slam/odometry.h>
-#include <pcl/evaluation/trajectory_evaluation.h>
+#include "simulated_drive.h"
 
 #include <gtest/gtest.h>
-
 #include <iostream>
 #include <memory>
+#include <pcl/evaluation/trajectory_evaluation.h>
+#include <pcl/simulation/lidar_simulator.h>
+#include <pcl/slam/odometry.h>
 #include <string>
 #include <vector>
 
@@ -19,39 +19,15 @@ namespace {
 
 using namespace pcl::rast;
 
-struct Drive
-{
-  std::vector<pcl::PointCloud<pcl::PointXYZI>::ConstPtr> clouds;
-  std::vector<std::vector<float>> times;
-  std::vector<double> stamps;
-  PoseVector gt;
-};
+using Drive = pcl_rast_test::SimulatedScans;
 
 /// 150 scans of an HDL-64 at 10 m/s around the generated loop (its corners turn at
 /// up to ~0.5 rad/s), raw or instantaneous; or \a num_frames along another path.
 Drive
 simulate(bool raw_sweep, PathType type = PathType::kLoop, int num_frames = 150)
 {
-  PathParams path;
-  path.type = type;
-  path.num_frames = num_frames;
-  LidarSimulatorParams params;
-  params.seed = 17;
-  params.num_threads = 2;
-  params.raw_sweep = raw_sweep;
-  LidarSimulator sim(params, generatePath(path));
-  Drive d;
-  const Pose3d T0_inv = sim.sensorPose(0).inverse();
-  for (std::size_t i = 0; i < sim.numFrames(); ++i) {
-    auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
-    std::vector<float> times;
-    sim.simulateFrame(i, *cloud, &times);
-    d.clouds.push_back(cloud);
-    d.times.push_back(std::move(times));
-    d.stamps.push_back(sim.timestamp(i));
-    d.gt.push_back(T0_inv * sim.sensorPose(i));
-  }
-  return d;
+  return pcl_rast_test::simulateScans(*pcl_rast_test::pathSimulator(
+      type, num_frames, PathParams().revisit_fraction, 17, raw_sweep));
 }
 
 struct TrackRun

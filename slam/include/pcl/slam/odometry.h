@@ -103,7 +103,22 @@ struct OdometryFrameResult
   /// motion from the frames before (not the first two frames of a run).
   bool deskew_applied = false;
   bool deskew_second_pass = false;
+  /// This scan was prepared on a second thread while the frame before was tracked
+  /// (Odometry::processFrame with a look-ahead scan): its ground removal and the choice
+  /// of the dense step's source points, and, unless it is motion-compensated, its
+  /// raster and ORB features. Their timings are those of that thread.
+  bool extracted_ahead = false;
   OdometryTimings timings;
+};
+
+/// \brief A scan handed to Odometry::processFrame one call ahead of its turn
+/// (look-ahead): the same arguments its own processFrame call will get.
+struct OdometryInput
+{
+  pcl::PointCloud<pcl::PointXYZI>::ConstPtr cloud;
+  double timestamp_s = 0.0;
+  std::size_t frame_index = 0;
+  std::vector<float> point_times_s; ///< as processFrame's (empty: none)
 };
 
 /// \brief When scans are motion-compensated (deskew.h).
@@ -413,6 +428,21 @@ public:
                                    double timestamp_s,
                                    std::size_t frame_index,
                                    const std::vector<float>& point_times_s);
+
+  /// \brief processFrame of this scan while \a next, the scan the next call will get,
+  /// is prepared on a second thread: its ground removal and the choice of the dense
+  /// step's source points, and, when it will not be motion-compensated, its raster and
+  /// ORB features (about half of a frame's work). The compensation needs this frame's
+  /// motion, so a scan with point times is compensated, rasterized and described in its
+  /// own call. The next call takes what was prepared when its scan is \a next (same
+  /// cloud pointer and frame index); otherwise it is dropped. The poses are the same as
+  /// without the look-ahead.
+  /// \throws std::invalid_argument when next.frame_index is not after \a frame_index
+  OdometryFrameResult processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                                   double timestamp_s,
+                                   std::size_t frame_index,
+                                   const std::vector<float>& point_times_s,
+                                   const OdometryInput& next);
 
   /// \brief Account for a frame without a usable scan: constant-velocity
   /// prediction, status kSkipped, never a key-frame.
