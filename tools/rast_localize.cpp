@@ -165,6 +165,12 @@ run(int argc, char** argv)
                  "a tentative placement is taken only when a second placement agrees, not "
                  "when the next scan's alignment to the map confirms it",
                  &no_tentative_alignment);
+  bool no_lookahead = false;
+  args.addSwitch(
+      "no-lookahead",
+      "compute each scan's ground, raster and ORB on the main thread after the "
+      "scan before, not on a second thread while it is tracked",
+      &no_lookahead);
   args.addSwitch("software-render", "render.png with OpenCV instead of VTK (faster)",
                  &software_render);
   args.addSwitch("quiet", "no progress bar", &quiet);
@@ -260,7 +266,7 @@ run(int argc, char** argv)
   std::optional<ProgressBar> bar;
   if (!quiet)
     bar.emplace("Localize", reader.size());
-  std::size_t placements_tried = 0;
+  std::size_t placements_tried = 0, prepared_ahead = 0;
   const pcl::StopWatch run_watch;
   // Scans are read a few ahead on a thread of their own (about 2 ms a frame).
   Prefetcher prefetcher(reader, 4);
@@ -273,8 +279,20 @@ run(int argc, char** argv)
     }
     rast::LocalizationFrame f;
     if (item.ok) {
-      f = localization->addScan(item.frame.cloud, item.frame.timestamp_s, i,
-                                item.frame.point_times_s);
+      // The next scan (read on the prefetcher's thread) for the odometry's look-ahead.
+      const ReadItem* next = no_lookahead ? nullptr : prefetcher.peek();
+      if (next && next->ok)
+        f = localization->addScan(item.frame.cloud,
+                                  item.frame.timestamp_s,
+                                  i,
+                                  item.frame.point_times_s,
+                                  {next->frame.cloud,
+                                   next->frame.timestamp_s,
+                                   i + 1,
+                                   next->frame.point_times_s});
+      else
+        f = localization->addScan(
+            item.frame.cloud, item.frame.timestamp_s, i, item.frame.point_times_s);
       ++usable;
     } else {
       std::fprintf(stderr, "\nframe %zu: skipped: %s\n", i, item.error.c_str());
@@ -282,6 +300,7 @@ run(int argc, char** argv)
       skipped.push_back({{"frame", i}, {"path", item.path}, {"reason", item.error}});
     }
     placements_tried += f.placement_tried ? 1 : 0;
+    prepared_ahead += f.odometry_prepared_ahead ? 1 : 0;
     if (f.status == rast::LocalizationStatus::kLocalized && first_localized < 0)
       first_localized = static_cast<int>(i);
     if (f.jump) {
@@ -391,6 +410,8 @@ run(int argc, char** argv)
       {"background_lag", params.background_placement_lag},
       {"tentative_by_alignment", params.confirm_tentative_by_alignment},
       {"tried", placements_tried}};
+  summary["lookahead"] = {{"on", !no_lookahead},
+                          {"frames_prepared_ahead", prepared_ahead}};
   summary["render_backend"] = render.backend;
   summary["error"] = nullptr;
   outputs.publish(summary);

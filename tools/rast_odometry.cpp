@@ -14,22 +14,21 @@
 /// Exit codes: 0 ok, 1 bad arguments, 2 I/O error, 3 no frame could be tracked or the
 /// run ended by an error.
 
-#include <pcl/slam/odometry.h>
-#include <pcl/io/pose_io.h>
-#include <pcl/io/sequence_reader.h>
-
 #include "cli.h"
 #include "output_set.h"
-#include "stop_signals.h"
+#include "prefetcher.h"
 #include "sensor_choice.h"
-
-#include <nlohmann/json.hpp>
+#include "stop_signals.h"
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <map>
+#include <nlohmann/json.hpp>
+#include <pcl/io/pose_io.h>
+#include <pcl/io/sequence_reader.h>
+#include <pcl/slam/odometry.h>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -54,7 +53,8 @@ run(int argc, char** argv)
   std::string input, output, sensor = "auto";
   DeskewFlags deskew;
   int first = 0, last = -1, stride = 1;
-  bool no_refine = false, no_loose_rematch = false, level = params.ground.level_cloud;
+  bool no_refine = false, no_lookahead = false, no_loose_rematch = false,
+       level = params.ground.level_cloud;
   bool no_vehicle_prior = false;
   int max_features = params.orb.max_features;
   double min_range = params.min_range_m, max_range = params.max_range_m;
@@ -110,6 +110,11 @@ run(int argc, char** argv)
                  "the prior gates stay fixed and the dense step has no pull to the prior "
                  "(the odometry before session 18; doc/odometry.md)",
                  &no_vehicle_prior);
+  args.addSwitch(
+      "no-lookahead",
+      "compute each scan's ground, raster and ORB on the main thread after the "
+      "scan before, not on a second thread while it is tracked",
+      &no_lookahead);
   args.addDouble(
       "visibility-margin",
       "moving objects: map voxels the scan sees through, and scan points the "
@@ -193,8 +198,11 @@ run(int argc, char** argv)
   rast::PoseVector poses;
   std::vector<double> times;
   std::ostringstream csv;
-  csv << "frame,status,ground_ms,raster_ms,orb_ms,match_ms,refine_ms,keyframe_ms,total_ms,"
-         "num_features,num_inliers,keyframe,degraded,deskew_ms,deskew,degenerate_directions\n";
+  csv << "frame,status,ground_ms,raster_ms,orb_ms,match_ms,refine_ms,keyframe_ms,total_"
+         "ms,"
+         "num_features,num_inliers,keyframe,degraded,deskew_ms,deskew,degenerate_"
+         "directions,"
+         "extracted_ahead\n";
   std::map<std::string, int> status_counts;
   std::vector<double> totals;
   std::size_t num_tracked = 0;
@@ -204,6 +212,8 @@ run(int argc, char** argv)
   std::exception_ptr run_error; // ends the run; the frames before it are written
   nlohmann::json skipped = nlohmann::json::array(); // scans that could not be read
   std::size_t stopped_at = reader.size();
+  // Scans are read a few ahead on a thread of their own.
+  Prefetcher prefetcher(reader, 4);
   for (std::size_t i = 0; i < reader.size() && !run_error; ++i) {
     if (stopRequested()) {
       stopped_at = i;
@@ -211,17 +221,39 @@ run(int argc, char** argv)
       break;
     }
     rast::OdometryFrameResult r;
+    ReadItem item;
     try {
       fault.check("tracking", i);
-      const rast::ScanFrame frame = reader.read(i);
-      if (!frame.time_warning.empty() && tally.time_field_warnings++ == 0)
-        std::fprintf(stderr, "\npcl_rast_odometry: warning: %s: %s (reported once per run)\n",
-                     frame.path.c_str(), frame.time_warning.c_str());
-      r = odometry.processFrame(frame.cloud, frame.timestamp_s, i, frame.point_times_s);
-    } catch (const rast::ScanReadError& e) {
-      std::fprintf(stderr, "\nframe %zu: skipped: %s\n", i, e.what());
-      r = odometry.skipFrame(reader.timestamp(i), i, e.what());
-      skipped.push_back({{"frame", i}, {"path", e.path()}, {"reason", e.what()}});
+      if (!prefetcher.next(item)) { // only after a stop signal
+        stopped_at = i;
+        reportStop("pcl_rast_odometry", i);
+        break;
+      }
+      if (item.ok) {
+        const rast::ScanFrame& frame = item.frame;
+        if (!frame.time_warning.empty() && tally.time_field_warnings++ == 0)
+          std::fprintf(stderr,
+                       "\npcl_rast_odometry: warning: %s: %s (reported once per run)\n",
+                       frame.path.c_str(),
+                       frame.time_warning.c_str());
+        // The next scan's ground, raster and ORB on a second thread meanwhile.
+        const ReadItem* next = no_lookahead ? nullptr : prefetcher.peek();
+        r = next && next->ok
+                ? odometry.processFrame(frame.cloud,
+                                        frame.timestamp_s,
+                                        i,
+                                        frame.point_times_s,
+                                        {next->frame.cloud,
+                                         next->frame.timestamp_s,
+                                         i + 1,
+                                         next->frame.point_times_s})
+                : odometry.processFrame(
+                      frame.cloud, frame.timestamp_s, i, frame.point_times_s);
+      } else {
+        std::fprintf(stderr, "\nframe %zu: skipped: %s\n", i, item.error.c_str());
+        r = odometry.skipFrame(item.timestamp_s, i, item.error);
+        skipped.push_back({{"frame", i}, {"path", item.path}, {"reason", item.error}});
+      }
     } catch (...) {
       run_error = std::current_exception();
       continue;
@@ -242,7 +274,8 @@ run(int argc, char** argv)
         << r.num_features << ',' << r.num_inliers << ',' << (r.keyframe ? 1 : 0) << ','
         << (r.degraded ? 1 : 0) << ',' << fmt(t.deskew_ms) << ','
         << (r.deskew_times.empty() ? "none" : r.deskew_times)
-        << (r.deskew_second_pass ? "+2" : "") << ',' << r.dense_degenerate_directions << '\n';
+        << (r.deskew_second_pass ? "+2" : "") << ',' << r.dense_degenerate_directions
+        << ',' << (r.extracted_ahead ? 1 : 0) << '\n';
     tally.add(r);
     frames_degenerate += r.dense_degenerate_directions > 0 ? 1 : 0;
     bar.update(i + 1);
@@ -295,6 +328,8 @@ run(int argc, char** argv)
                        {"frames_by_time_source", tally.frames_by_time_source},
                        {"second_passes", tally.second_passes},
                        {"time_field_warnings", tally.time_field_warnings}};
+  summary["params"] = {{"visibility_margin_m", params.visibility_margin_m},
+                       {"lookahead", !no_lookahead}};
   summary["max_rotation_error"] = rast::maxRotationError(poses);
   summary["error"] = run_error ? nlohmann::json(error_message) : nlohmann::json(nullptr);
   outputs.publish(summary); // summary.json last: it lists the files of this run

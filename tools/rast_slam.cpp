@@ -329,6 +329,13 @@ run(int argc, char** argv)
                    "points the key-frame saw through, by more than this are left out of the "
                    "dense step (m, e.g. 1; 0: off, the default; doc/odometry.md)",
                    &visibility_margin);
+  bool no_lookahead = false;
+  parser.addSwitch(
+      "no-lookahead",
+      "tracking: compute each scan's ground, raster and ORB on the tracking "
+      "thread after the scan before, not on a thread of their own while it is "
+      "tracked (the poses are the same)",
+      &no_lookahead);
   parser.addDouble("map-leaf", "voxel size of map.pcd [m]", &map_leaf_m);
   parser.addSwitch("software-render", "render.png with OpenCV instead of VTK (faster)",
                    &software_render);
@@ -538,8 +545,25 @@ run(int argc, char** argv)
           if (!item.frame.time_warning.empty() && tally.time_field_warnings++ == 0)
             std::cerr << "\npcl_rast_slam: warning: " << item.path << ": "
                       << item.frame.time_warning << " (reported once per run)\n";
-          tally.add(slam.addScan(item.frame.cloud, item.timestamp_s, item.sequence_index,
-                                 item.frame.point_times_s, item.path));
+          // The next scan's ground, raster and ORB on a thread of their own meanwhile.
+          const pcl_rast_tools::ReadItem* next =
+              no_lookahead ? nullptr : prefetcher.peek();
+          if (next && next->ok && !next->frame.cloud->empty())
+            tally.add(slam.addScan(item.frame.cloud,
+                                   item.timestamp_s,
+                                   item.sequence_index,
+                                   item.frame.point_times_s,
+                                   {next->frame.cloud,
+                                    next->timestamp_s,
+                                    next->sequence_index,
+                                    next->frame.point_times_s},
+                                   item.path));
+          else
+            tally.add(slam.addScan(item.frame.cloud,
+                                   item.timestamp_s,
+                                   item.sequence_index,
+                                   item.frame.point_times_s,
+                                   item.path));
         }
       }
       else {
@@ -766,24 +790,26 @@ run(int argc, char** argv)
   summary["cpu_s"] = processCpuS();
   summary["render_backend"] = render.backend;
   summary["render_message"] = render.message;
-  summary["params"] = {{"threads", threads},
-                       {"sensor", rast::toString(preset)},
-                       {"deskew", rast::toString(params.odometry.deskew.mode)},
-                       {"deskew_reason", deskew_reason},
-                       {"deskew_timing", deskew_timing},
-                       {"sensor_choice", sensor_reason},
-                       {"loop_closure", params.loop_closing.enable},
-                       {"revisit_culling", params.loop_closing.cull_revisits},
-                       {"young_map_scans", params.odometry.dense.young_map_scans},
-                       {"degeneracy_support", params.odometry.dense.degeneracy_min_support},
-                       {"visibility_margin_m", params.odometry.visibility_margin_m},
-                       {"local_ba", params.local_mapping.enable_bundle_adjustment},
-                       {"global_ba", params.loop_closing.global_bundle_adjustment},
-                       {"map_leaf_m", map_leaf_m},
-                       {"first", first},
-                       {"last", last},
-                       {"stride", stride},
-                       {"ba_window", params.local_mapping.window_size}};
+  summary["params"] = {
+      {"threads", threads},
+      {"sensor", rast::toString(preset)},
+      {"deskew", rast::toString(params.odometry.deskew.mode)},
+      {"deskew_reason", deskew_reason},
+      {"deskew_timing", deskew_timing},
+      {"sensor_choice", sensor_reason},
+      {"loop_closure", params.loop_closing.enable},
+      {"revisit_culling", params.loop_closing.cull_revisits},
+      {"young_map_scans", params.odometry.dense.young_map_scans},
+      {"degeneracy_support", params.odometry.dense.degeneracy_min_support},
+      {"visibility_margin_m", params.odometry.visibility_margin_m},
+      {"lookahead", !no_lookahead},
+      {"local_ba", params.local_mapping.enable_bundle_adjustment},
+      {"global_ba", params.loop_closing.global_bundle_adjustment},
+      {"map_leaf_m", map_leaf_m},
+      {"first", first},
+      {"last", last},
+      {"stride", stride},
+      {"ba_window", params.local_mapping.window_size}};
   if (!gt.empty()) {
     rast::PoseVector gt_n, est_n; // the pairs whose frame was processed
     for (std::size_t k = 0; k < gt.size() && gt_frame[k] < poses.size(); ++k) {

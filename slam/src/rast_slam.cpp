@@ -348,6 +348,13 @@ struct RastSlam::Impl
   }
 
   /// Tracking output -> the map, and a new key-frame to the next stage.
+  /// RastSlam::addScan (\a next: the look-ahead scan, or null).
+  OdometryFrameResult add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                          double timestamp_s,
+                          std::size_t frame_index,
+                          const std::vector<float>& point_times_s,
+                          const OdometryInput* next,
+                          const std::string& path);
   void handleTracking(const OdometryFrameResult& r, const std::string& path, bool is_skipped,
                       const std::string& reason)
   {
@@ -445,18 +452,41 @@ RastSlam::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
                   const std::vector<float>& point_times_s,
                   const std::string& path)
 {
-  if (impl_->finished)
+  return impl_->add(cloud, timestamp_s, frame_index, point_times_s, nullptr, path);
+}
+
+OdometryFrameResult
+RastSlam::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                  double timestamp_s,
+                  std::size_t frame_index,
+                  const std::vector<float>& point_times_s,
+                  const OdometryInput& next,
+                  const std::string& path)
+{
+  return impl_->add(cloud, timestamp_s, frame_index, point_times_s, &next, path);
+}
+
+OdometryFrameResult
+RastSlam::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                    double timestamp_s,
+                    std::size_t frame_index,
+                    const std::vector<float>& point_times_s,
+                    const OdometryInput* next,
+                    const std::string& path)
+{
+  if (finished)
     throw std::logic_error("RastSlam::addScan: called after finish()");
-  if (impl_->failed())
-    impl_->finish(); // joins and rethrows the worker's exception
+  if (failed())
+    finish(); // joins and rethrows the worker's exception
   const double cpu0 = threadCpuMs();
   OdometryFrameResult r =
-      impl_->odometry.processFrame(cloud, timestamp_s, frame_index, point_times_s);
+      next ? odometry.processFrame(cloud, timestamp_s, frame_index, point_times_s, *next)
+           : odometry.processFrame(cloud, timestamp_s, frame_index, point_times_s);
   {
-    std::lock_guard<std::mutex> lock(impl_->stats_mutex);
-    impl_->cpu_ms["tracking"] += threadCpuMs() - cpu0;
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    cpu_ms["tracking"] += threadCpuMs() - cpu0;
   }
-  impl_->handleTracking(r, path, false, "");
+  handleTracking(r, path, false, "");
   return r;
 }
 

@@ -303,6 +303,13 @@ struct MapLocalization::Impl
       : localizer(l), odometry_params(o), params(p), odometry(std::make_unique<Odometry>(o))
   {}
 
+  /// MapLocalization::addScan (\a next: the look-ahead scan, or null).
+  LocalizationFrame add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_scan,
+                        double timestamp_s,
+                        std::size_t frame_index,
+                        const std::vector<float>& point_times_s,
+                        const OdometryInput* next);
+
   /// An alignment to the map that confirmed a pose.
   struct Alignment
   {
@@ -541,11 +548,14 @@ struct MapLocalization::Impl
                                   double timestamp_s,
                                   std::size_t frame_index,
                                   const std::vector<float>& point_times_s,
+                                  const OdometryInput* next,
                                   Pose3d& step)
   {
     restartOdometryIfStale();
     const OdometryFrameResult odo =
-        odometry->processFrame(scan, timestamp_s, frame_index, point_times_s);
+        next
+            ? odometry->processFrame(scan, timestamp_s, frame_index, point_times_s, *next)
+            : odometry->processFrame(scan, timestamp_s, frame_index, point_times_s);
     step = odometryStep(odo);
     return odo;
   }
@@ -605,6 +615,14 @@ struct MapLocalization::Impl
     return d_m <= params.agree_m && d_deg <= params.agree_deg;
   }
 
+  /// A recent tentative placement of this odometry run that the map's alignment may
+  /// confirm (MapLocalizationParams::confirm_tentative_by_alignment).
+  bool tentativeToConfirm() const
+  {
+    return params.confirm_tentative_by_alignment && recentWithinWindow() &&
+           recent_placement->tentative && recent_placement->odometry_run == odometry_run;
+  }
+
   /// The map's alignment of this scan from the recent tentative placement, moved by
   /// the odometry to the scan (odometry pose \a T_odom_lidar)
   /// (MapLocalizationParams::confirm_tentative_by_alignment); nullopt when there is
@@ -613,9 +631,7 @@ struct MapLocalization::Impl
                                             const Pose3d& T_odom_lidar,
                                             std::string& how)
   {
-    if (!params.confirm_tentative_by_alignment || !recentWithinWindow() ||
-        !recent_placement->tentative || recent_placement->odometry_run != odometry_run ||
-        scan.empty())
+    if (!tentativeToConfirm() || scan.empty())
       return std::nullopt;
     const Pose3d moved = normalizedPose(recent_placement->T_world_lidar *
                                         (recent_placement->T_odom_lidar.inverse() * T_odom_lidar));
@@ -709,8 +725,33 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
                          std::size_t frame_index,
                          const std::vector<float>& point_times_s)
 {
+  return impl_->add(raw_scan, timestamp_s, frame_index, point_times_s, nullptr);
+}
+
+LocalizationFrame
+MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_scan,
+                         double timestamp_s,
+                         std::size_t frame_index,
+                         const std::vector<float>& point_times_s,
+                         const OdometryInput& next)
+{
+  if (next.frame_index <= frame_index)
+    throw std::invalid_argument("MapLocalization: the look-ahead scan's frame index " +
+                                std::to_string(next.frame_index) +
+                                " is not after this frame's " +
+                                std::to_string(frame_index));
+  return impl_->add(raw_scan, timestamp_s, frame_index, point_times_s, &next);
+}
+
+LocalizationFrame
+MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_scan,
+                           double timestamp_s,
+                           std::size_t frame_index,
+                           const std::vector<float>& point_times_s,
+                           const OdometryInput* next)
+{
   const pcl::StopWatch watch;
-  Impl& m = *impl_;
+  Impl& m = *this;
   m.started = true;
   ++m.frames;
   LocalizationFrame f;
@@ -725,10 +766,11 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   std::optional<OdometryFrameResult> odo;
   const auto track = [&] {
     const bool fresh = m.odometry_stale || !m.have_odom_previous;
-    odo = m.runOdometry(raw_scan, timestamp_s, frame_index, point_times_s, step);
+    odo = m.runOdometry(raw_scan, timestamp_s, frame_index, point_times_s, next, step);
     if (fresh && velocity_step)
       step = *velocity_step;
     f.odometry_ran = true;
+    f.odometry_prepared_ahead = odo->extracted_ahead;
   };
   const bool map_tracks = m.params.track_on_map && m.previous_confirmed && velocity_step &&
                           raw_scan && !raw_scan->empty();
@@ -738,9 +780,16 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   } else {
     track();
   }
-  // The map's key-frames were compensated: so is the scan aligned or placed on them.
-  const pcl::PointCloud<pcl::PointXYZI>::ConstPtr scan =
-      m.compensated(raw_scan, point_times_s, dt, step);
+  // The map's key-frames were compensated: so is the scan aligned or placed on them,
+  // with this step. Made when first needed: most frames off the map need none.
+  const bool has_points = raw_scan && !raw_scan->empty();
+  const Pose3d compensation_step = step;
+  pcl::PointCloud<pcl::PointXYZI>::ConstPtr compensated_scan;
+  const auto scan = [&]() -> const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& {
+    if (!compensated_scan)
+      compensated_scan = m.compensated(raw_scan, point_times_s, dt, compensation_step);
+    return compensated_scan;
+  };
   m.last_timestamp_s = timestamp_s; // the next step starts from this frame's pose
   std::optional<Pose3d> predicted;
   if (m.T_world_previous)
@@ -750,8 +799,8 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   if (predicted && m.tracking_only >= m.params.max_realign_frames) {
     why = std::to_string(m.tracking_only) +
           " frames since the map last confirmed the pose: only a placement localizes again";
-  } else if (predicted && scan && !scan->empty()) {
-    std::optional<Impl::Alignment> a = m.alignToMap(*scan, *predicted, why);
+  } else if (predicted && has_points) {
+    std::optional<Impl::Alignment> a = m.alignToMap(*scan(), *predicted, why);
     if (a) {
       if (std::string worse = m.suddenlyWorse(a->rmse_m); !worse.empty()) {
         why = "key-frame " + std::to_string(a->keyframe) + ": " + worse;
@@ -816,7 +865,9 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   // A recent tentative placement that this scan's alignment to the map confirms.
   std::string how;
   if (const std::optional<Impl::Alignment> a =
-          scan ? m.confirmTentative(*scan, odo->T_world_lidar, how) : std::nullopt) {
+          has_points && m.tentativeToConfirm()
+              ? m.confirmTentative(*scan(), odo->T_world_lidar, how)
+              : std::nullopt) {
     Placement confirmed;
     confirmed.success = true;
     confirmed.T_world_lidar = a->T_world_lidar;
@@ -833,7 +884,7 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
   }
   Placement placement;
   bool started_in_background = false;
-  if (!odo->features || odo->features->empty() || !scan || scan->empty()) {
+  if (!odo->features || odo->features->empty() || !has_points) {
     placement.message = "no features: " + odo->message;
   } else if (!m.placementDue()) {
     placement.message = !collected.empty()
@@ -845,10 +896,10 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
     // The odometry goes on with the next frames meanwhile (the query is a copy).
     f.placement_tried = true;
     KeyFrame query;
-    const bool own_features = scan != raw_scan && !odo->deskew_applied;
+    const bool own_features = scan() != raw_scan && !odo->deskew_applied;
     if (!own_features)
       query.features = *odo->features;
-    query.cloud = scan;
+    query.cloud = scan();
     const SessionLocalizer& localizer = m.localizer;
     m.pending =
         Impl::Pending{std::async(std::launch::async,
@@ -865,12 +916,12 @@ MapLocalization::addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_sc
     started_in_background = true;
   } else {
     f.placement_tried = true;
-    if (scan != raw_scan && !odo->deskew_applied) {
-      placement = m.localizer.place(scan);
+    if (scan() != raw_scan && !odo->deskew_applied) {
+      placement = m.localizer.place(scan());
     } else {
       KeyFrame query;
       query.features = *odo->features;
-      query.cloud = scan;
+      query.cloud = scan();
       placement = m.localizer.place(query);
     }
     m.last_attempt_frame = m.frames;

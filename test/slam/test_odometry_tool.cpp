@@ -128,6 +128,35 @@ TEST_F(OdometryTool, WritesPosesAndTimingForEveryFrame)
   }
 }
 
+/// The look-ahead (the next scan prepared on a second thread) is on by default; it
+/// changes no pose, and an unreadable scan ahead is simply not prepared.
+TEST_F(OdometryTool, TheLookAheadChangesNoPose)
+{
+  const fs::path seq = sequence();
+  std::ofstream(seq / "velodyne" / "000005.bin") << "garbage";
+  const fs::path with = dir_ / "with", without = dir_ / "without";
+  const std::string in = "-input '" + seq.string() + "' -output '";
+  ASSERT_EQ(runOdometry(in + with.string() + "'", log_), 0) << readAll(log_);
+  ASSERT_EQ(runOdometry(in + without.string() + "' -no-lookahead", log_), 0)
+      << readAll(log_);
+  EXPECT_EQ(readAll(with / "poses_kitti.txt"), readAll(without / "poses_kitti.txt"));
+  EXPECT_TRUE(nlohmann::json::parse(readAll(with / "summary.json"))["params"]["lookahead"]
+                  .get<bool>());
+  EXPECT_FALSE(
+      nlohmann::json::parse(readAll(without / "summary.json"))["params"]["lookahead"]
+          .get<bool>());
+  // timing.csv's last column: prepared ahead or not.
+  const auto ahead = [](const fs::path& out) {
+    std::string flags;
+    for (const auto& row : readLines(out / "timing.csv"))
+      flags += row.substr(row.rfind(',') + 1);
+    return flags;
+  };
+  // Frame 0 has no frame before it, 5 is unreadable, 6 follows it.
+  EXPECT_EQ(ahead(with), "extracted_ahead011110011111");
+  EXPECT_EQ(ahead(without), "extracted_ahead000000000000");
+}
+
 TEST_F(OdometryTool, AnErrorMidRunStillWritesTheFramesBeforeItAndExitsThree)
 {
   const fs::path seq = sequence();

@@ -2,13 +2,6 @@
 /// are placed on the map with no prior pose, and scans of a world that was never mapped
 /// are not placed at all. Simulated (HDL-64 loop, seed 3; the other world seed 9).
 
-#include <pcl/simulation/lidar_simulator.h>
-#include <pcl/slam/rast_slam.h>
-#include <pcl/slam/session.h>
-#include <pcl/slam/session_localizer.h>
-
-#include <gtest/gtest.h>
-
 #include "simulated_drive.h"
 #include "temp_cleanup.h"
 
@@ -17,7 +10,13 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <gtest/gtest.h>
+#include <pcl/simulation/lidar_simulator.h>
+#include <pcl/slam/rast_slam.h>
+#include <pcl/slam/session.h>
+#include <pcl/slam/session_localizer.h>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -326,19 +325,43 @@ TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
 {
   const MappedLoop m = mapLoop();
   const auto elsewhere = pathSimulator(PathType::kStraight, 18, 0.0, 9);
+  // The drive: 18 frames off the map, then 8 on it (the mapped loop's times go on after
+  // the other world's).
+  std::vector<OdometryInput> drive;
+  for (std::size_t i = 0; i < 18; ++i)
+    drive.push_back({simulateFrame(*elsewhere, i), elsewhere->timestamp(i), i, {}});
+  for (std::size_t j = 0; j < 8; ++j)
+    drive.push_back({simulateFrame(*m.sim, 160 + j),
+                     elsewhere->timestamp(17) + 0.1 * (j + 1),
+                     18 + j,
+                     {}});
+  const auto addScan = [&](MapLocalization& localization, std::size_t k, bool lookahead) {
+    const OdometryInput& s = drive[k];
+    return lookahead && k + 1 < drive.size()
+               ? localization.addScan(
+                     s.cloud, s.timestamp_s, s.frame_index, {}, drive[k + 1])
+               : localization.addScan(s.cloud, s.timestamp_s, s.frame_index);
+  };
   // every 1: each frame tries at once (the lag needs placement_every above it); every
-  // 3: backed off, at once (lag 0) or in the background and taken a frame later.
-  for (const auto& [every, lag] : {std::pair{1, 1}, std::pair{3, 0}, std::pair{3, 1}}) {
+  // 3: backed off, at once (lag 0) or in the background and taken a frame later; the
+  // last again with the odometry's look-ahead (the next scan prepared on a thread of its
+  // own), which changes no pose.
+  std::vector<LocalizationFrame> without_lookahead;
+  for (const auto& [every, lag, lookahead] : {std::tuple{1, 1, false},
+                                              std::tuple{3, 0, false},
+                                              std::tuple{3, 1, false},
+                                              std::tuple{3, 1, true}}) {
     MapLocalizationParams params;
     params.placement_backoff_after = 6;
     params.placement_every = every;
     params.background_placement_lag = lag;
     const bool background = every > lag && lag > 0;
     MapLocalization localization(*m.localizer, m.odometry, params);
+    std::vector<LocalizationFrame> frames;
     int tried_off = 0, first_localized = -1, collected = 0, failed = 0;
     for (std::size_t i = 0; i < 18; ++i) {
-      const LocalizationFrame f =
-          localization.addScan(simulateFrame(*elsewhere, i), elsewhere->timestamp(i), i);
+      const LocalizationFrame f = addScan(localization, i, lookahead);
+      frames.push_back(f);
       EXPECT_NE(f.status, LocalizationStatus::kLocalized) << "frame " << i << ": " << f.message;
       tried_off += f.placement_tried ? 1 : 0;
       const bool started =
@@ -364,9 +387,8 @@ TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
     }
     for (std::size_t j = 0; j < 8; ++j) {
       const std::size_t i = 160 + j;
-      // The mapped loop's times go on after the other world's.
-      const LocalizationFrame f = localization.addScan(
-          simulateFrame(*m.sim, i), elsewhere->timestamp(17) + 0.1 * (j + 1), 18 + j);
+      const LocalizationFrame f = addScan(localization, 18 + j, lookahead);
+      frames.push_back(f);
       if (f.status != LocalizationStatus::kLocalized)
         continue;
       if (first_localized < 0) {
@@ -394,6 +416,22 @@ TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
     ASSERT_GE(first_localized, 0) << "never localized on the map";
     // The first placement tried on the map places it: at once, or a frame later.
     EXPECT_LT(first_localized, every + (background ? lag : 0));
+    if (!lookahead && every == 3 && lag == 1)
+      without_lookahead = frames;
+    if (lookahead) {
+      int prepared_ahead = 0;
+      for (const auto& f : frames)
+        prepared_ahead += f.odometry_prepared_ahead ? 1 : 0;
+      // Off the map the odometry runs on every frame: all but the first take theirs.
+      EXPECT_GE(prepared_ahead, 17);
+      ASSERT_EQ(frames.size(), without_lookahead.size());
+      for (std::size_t k = 0; k < frames.size(); ++k) {
+        EXPECT_TRUE(frames[k].T_world_lidar.matrix() ==
+                    without_lookahead[k].T_world_lidar.matrix())
+            << "frame " << k << ": " << frames[k].message;
+        EXPECT_EQ(frames[k].status, without_lookahead[k].status) << "frame " << k;
+      }
+    }
   }
 }
 

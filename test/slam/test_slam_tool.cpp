@@ -197,6 +197,28 @@ TEST_F(SlamTool, TheVisibilityMarginIsHandedToTheOdometry)
       << "off by default";
 }
 
+/// The next scan prepared on a second thread (the default): in deterministic mode the
+/// run is the same without it, file for file; the sequence's corrupt frame 12 is not
+/// prepared ahead.
+TEST_F(SlamTool, TheLookAheadChangesNoPose)
+{
+  const fs::path seq = sequenceDir();
+  const std::string in =
+      "-input '" + seq.string() + "' -threads off -software-render -output '";
+  const fs::path with = dir_ / "with", without = dir_ / "without";
+  ASSERT_EQ(runTool(in + with.string() + "'", log_), 0) << readFile(log_);
+  ASSERT_EQ(runTool(in + without.string() + "' -no-lookahead", log_), 0)
+      << readFile(log_);
+  EXPECT_EQ(readFile(with / "poses_kitti.txt"), readFile(without / "poses_kitti.txt"));
+  EXPECT_FALSE(readFile(with / "poses_kitti.txt").empty());
+  EXPECT_TRUE(
+      nlohmann::json::parse(readFile(with / "summary.json"))["params"]["lookahead"]
+          .get<bool>());
+  EXPECT_FALSE(
+      nlohmann::json::parse(readFile(without / "summary.json"))["params"]["lookahead"]
+          .get<bool>());
+}
+
 /// -save-session: the run's map saved as a session that loads back with the run's
 /// key-frames and sensor preset; a folder that is not a session is refused before any
 /// work, and a session folder is replaced by the next run.

@@ -89,6 +89,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_TRUE(summary["jumps"].empty());
   EXPECT_EQ(summary["placement"]["min_inliers"].get<int>(), 40);
   EXPECT_TRUE(summary["placement"]["track_on_map"].get<bool>());
+  EXPECT_TRUE(summary["lookahead"]["on"].get<bool>());
 
   // In the map's frame: where the SLAM run put the same scans.
   const auto slam = pcl::rast::readTrajectory((m.slam_out / "poses_kitti.txt").string());
@@ -122,6 +123,19 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   const auto summary2 = nlohmann::json::parse(readFile(out2 / "summary.json"));
   EXPECT_TRUE(summary2["initial_pose_given"].get<bool>());
   EXPECT_EQ(summary2["frames_localized"].get<int>(), 10);
+
+  // Without the odometry's look-ahead: the same poses (MapLocalization's own test
+  // compares them off the map, where the odometry runs on every frame).
+  const fs::path out3 = dir_ / "out3";
+  ASSERT_EQ(run("-session " + quoted(m.session) + " -input " + quoted(m.scans) +
+                " -output " + quoted(out3) +
+                " -first 10 -software-render -quiet -no-lookahead"),
+            0)
+      << readFile(log_);
+  EXPECT_EQ(readFile(out3 / "poses_kitti.txt"), readFile(out / "poses_kitti.txt"));
+  const auto summary3 = nlohmann::json::parse(readFile(out3 / "summary.json"));
+  EXPECT_FALSE(summary3["lookahead"]["on"].get<bool>());
+  EXPECT_EQ(summary3["lookahead"]["frames_prepared_ahead"].get<int>(), 0);
 }
 
 TEST_F(LocalizeTool, BadSessionsAndArgumentsAreRefusedBeforeAnyWork)

@@ -36,6 +36,15 @@ Prefetcher::next(ReadItem& item)
   return true;
 }
 
+const ReadItem*
+Prefetcher::peek()
+{
+  std::unique_lock<std::mutex> lock(mutex_);
+  cv_.wait(lock, [&] { return done_ || !items_.empty(); });
+  // The reading thread only appends: a deque keeps its elements where they are.
+  return items_.empty() ? nullptr : &items_.front();
+}
+
 void
 Prefetcher::run()
 {

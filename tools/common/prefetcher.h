@@ -42,6 +42,10 @@ public:
   /// what was read before a stop signal).
   bool next(ReadItem& item);
 
+  /// \brief The scan next() will hand out, waiting for it to be read; null at the end.
+  /// The item stays valid, unchanged, until next() is called.
+  const ReadItem* peek();
+
 private:
   void run();
 

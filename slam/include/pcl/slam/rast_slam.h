@@ -213,6 +213,16 @@ public:
                               const std::vector<float>& point_times_s,
                               const std::string& path = "");
 
+  /// \brief addScan while \a next, the scan the next addScan will get, is prepared on a
+  /// second thread (Odometry::processFrame with a look-ahead scan: the same poses).
+  /// \throws std::invalid_argument when next.frame_index is not after \a frame_index
+  OdometryFrameResult addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+                              double timestamp_s,
+                              std::size_t frame_index,
+                              const std::vector<float>& point_times_s,
+                              const OdometryInput& next,
+                              const std::string& path = "");
+
   /// \brief Account for a frame without a usable scan (constant-velocity pose).
   OdometryFrameResult addSkippedScan(std::size_t frame_index,
                                      double timestamp_s,

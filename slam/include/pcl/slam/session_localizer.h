@@ -237,6 +237,8 @@ struct LocalizationFrame
   /// started in the background (background_placement_lag).
   bool placement_tried = false;
   bool odometry_ran = false; ///< the odometry tracked this frame (see track_on_map)
+  /// ... and took the scan prepared ahead (addScan with a look-ahead scan).
+  bool odometry_prepared_ahead = false;
   bool jump = false;     ///< that placement was a jump away from the prediction
   double jump_m = 0.0;   ///< how far
   KeyFrameId keyframe = 0; ///< the session key-frame it was aligned to or placed on
@@ -284,6 +286,16 @@ public:
                             double timestamp_s,
                             std::size_t frame_index,
                             const std::vector<float>& point_times_s);
+  /// \brief addScan while, where the odometry runs on this scan, the steps of \a next
+  /// that need no pose (ground removal, raster, ORB) are computed on a second thread
+  /// (Odometry::processFrame with a look-ahead scan). \a next is the scan the next
+  /// addScan will get; its cloud must not change until then.
+  /// \throws std::invalid_argument when next.frame_index is not after \a frame_index
+  LocalizationFrame addScan(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+                            double timestamp_s,
+                            std::size_t frame_index,
+                            const std::vector<float>& point_times_s,
+                            const OdometryInput& next);
   /// \brief A scan that could not be read: carried on by the odometry's prediction.
   LocalizationFrame addSkippedScan(double timestamp_s,
                                    std::size_t frame_index,
