@@ -198,11 +198,11 @@ run(int argc, char** argv)
   rast::PoseVector poses;
   std::vector<double> times;
   std::ostringstream csv;
-  csv << "frame,status,ground_ms,raster_ms,orb_ms,match_ms,refine_ms,keyframe_ms,total_"
-         "ms,"
-         "num_features,num_inliers,keyframe,degraded,deskew_ms,deskew,degenerate_"
-         "directions,"
+  // clang-format off
+  csv << "frame,status,ground_ms,raster_ms,orb_ms,match_ms,refine_ms,keyframe_ms,total_ms,"
+         "num_features,num_inliers,keyframe,degraded,deskew_ms,deskew,degenerate_directions,"
          "extracted_ahead\n";
+  // clang-format on
   std::map<std::string, int> status_counts;
   std::vector<double> totals;
   std::size_t num_tracked = 0;

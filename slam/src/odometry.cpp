@@ -584,6 +584,36 @@ Odometry::Impl::finishPrepare(FrontEnd& front,
   frame.extracted = true;
 }
 
+void
+Odometry::Impl::launchAhead(const OdometryInput& next, double timestamp_s)
+{
+  // Started before this frame is tracked: what needs its motion (the compensation of a
+  // scan with times, and the raster and ORB of the compensated points) waits.
+  const double next_interval = interval(timestamp_s, next.timestamp_s);
+  OdometryFrameResult next_result;
+  next_result.frame_index = next.frame_index;
+  next_result.timestamp_s = next.timestamp_s;
+  next_result.extracted_ahead = true;
+  std::packaged_task<Prepared()> task([this,
+                                       input = next.cloud,
+                                       times = next.point_times_s,
+                                       next_interval,
+                                       next_result = std::move(next_result)] {
+    return prepare(
+        front_end_ahead, input, times, true, next_interval, nullptr, next_result);
+  });
+  if (!ahead_thread)
+    ahead_thread = std::make_unique<AheadThread>();
+  Ahead a;
+  a.cloud = next.cloud.get();
+  a.frame_index = next.frame_index;
+  a.timestamp_s = next.timestamp_s;
+  a.after_s = timestamp_s;
+  a.job = task.get_future();
+  ahead_thread->tasks.push(std::move(task));
+  ahead.emplace(std::move(a));
+}
+
 OdometryFrameResult
 Odometry::Impl::process(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
                         double timestamp_s,
@@ -601,39 +631,28 @@ Odometry::Impl::process(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
   std::optional<Ahead> mine = std::exchange(ahead, std::nullopt);
   if (mine)
     mine->job.wait();
-  if (mine && (mine->cloud != cloud.get() || mine->frame_index != frame_index))
-    mine.reset(); // another scan came: dropped
+  if (mine && (mine->cloud != cloud.get() || mine->frame_index != frame_index ||
+               mine->timestamp_s != timestamp_s || mine->after_s != t_last))
+    mine.reset(); // another scan came, or a frame was skipped in between: dropped
   if (next && next->cloud) {
-    // Started before this frame is tracked: what needs its motion (the compensation of
-    // a scan with times, and the raster and ORB of the compensated points) waits.
-    const double next_interval = interval(timestamp_s, next->timestamp_s);
-    OdometryFrameResult next_result;
-    next_result.frame_index = next->frame_index;
-    next_result.timestamp_s = next->timestamp_s;
-    next_result.extracted_ahead = true;
-    ahead.emplace();
-    ahead->cloud = next->cloud.get();
-    ahead->frame_index = next->frame_index;
-    std::packaged_task<Prepared()> task([this,
-                                         input = next->cloud,
-                                         times = next->point_times_s,
-                                         next_interval,
-                                         next_result = std::move(next_result)] {
-      return prepare(
-          front_end_ahead, input, times, true, next_interval, nullptr, next_result);
-    });
-    ahead->job = task.get_future();
-    if (!ahead_thread)
-      ahead_thread = std::make_unique<AheadThread>();
-    ahead_thread->tasks.push(std::move(task));
+    try {
+      launchAhead(*next, timestamp_s);
+    } catch (const std::exception&) {
+      ahead.reset(); // no thread to be had: the next frame goes without
+    }
   }
   if (!cloud)
     return skip(timestamp_s, frame_index, "null cloud");
   try {
     const SweepMotion motion = sweepMotion(timestamp_s);
+    std::optional<Prepared> taken;
+    if (mine)
+      taken = mine->job.get();
+    if (taken && taken->frame->own_times != point_times)
+      taken.reset(); // prepared for other point times (a caller's mistake): again
     Prepared prepared =
-        mine ? mine->job.get()
-             : prepare(front_end, cloud, point_times, false, motion.dt, &motion, result);
+        taken ? std::move(*taken)
+              : prepare(front_end, cloud, point_times, false, motion.dt, &motion, result);
     if (prepared.frame->usable) {
       if (!prepared.frame->extracted)
         finishPrepare(front_end, *prepared.frame, prepared.result, &motion);

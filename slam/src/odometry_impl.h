@@ -297,6 +297,9 @@ struct Odometry::Impl
                               std::size_t frame_index,
                               const std::vector<float>& point_times,
                               const OdometryInput* next);
+  /// Starts preparing \a next on ahead_thread (the frame at \a timestamp_s being the one
+  /// before it).
+  void launchAhead(const OdometryInput& next, double timestamp_s);
   /// Steps 0-1 of a scan (range check, point times, ground removal) and the choice of
   /// its dense source points, then, with \a motion or when the scan has no times to
   /// compensate, steps 2-3 (finishPrepare). No state of the tracking is read or written
@@ -446,8 +449,13 @@ struct Odometry::Impl
   /// The look-ahead's scan being prepared on its thread (front_end_ahead).
   struct Ahead
   {
+    /// The scan it is for, as the next call must give it ...
     const pcl::PointCloud<pcl::PointXYZI>* cloud = nullptr;
     std::size_t frame_index = 0;
+    double timestamp_s = 0.0;
+    /// ... right after the frame at this time (its interval is the period of azimuth
+    /// times): a skipFrame between drops it.
+    double after_s = 0.0;
     std::future<Prepared> job;
   };
   std::optional<Ahead> ahead;
@@ -458,8 +466,10 @@ struct Odometry::Impl
   {
     AheadThread()
         : thread([this] {
-            for (std::packaged_task<Prepared()> task; tasks.pop(task);)
+            for (std::packaged_task<Prepared()> task; tasks.pop(task);) {
               task();
+              task = {}; // lets go of the scan it held
+            }
           })
     {}
     ~AheadThread()

@@ -131,6 +131,25 @@ TEST(OdometryLookahead, AScanThatDoesNotComeIsDropped)
   const OdometryFrameResult r = odometry.processFrame(d.clouds[2], d.stamps[2], 2, {});
   EXPECT_FALSE(r.extracted_ahead);
   EXPECT_EQ(r.status, TrackingStatus::kFeatures) << r.message;
+
+  // The scan two frames on, with a skipped frame between: prepared for another frame
+  // interval (the period of azimuth times), dropped.
+  OdometryParams azimuth;
+  azimuth.deskew.mode = DeskewMode::kOn;
+  Odometry skipping(azimuth);
+  skipping.processFrame(
+      d.clouds[0], d.stamps[0], 0, {}, {d.clouds[2], d.stamps[2], 2, {}});
+  skipping.skipFrame(d.stamps[1], 1, "unreadable");
+  EXPECT_FALSE(skipping.processFrame(d.clouds[2], d.stamps[2], 2, {}).extracted_ahead);
+
+  // Given ahead with other point times than it comes with: prepared again.
+  Odometry timed{OdometryParams()};
+  timed.processFrame(
+      d.clouds[0], d.stamps[0], 0, d.times[0], {d.clouds[1], d.stamps[1], 1, d.times[1]});
+  const OdometryFrameResult untimed = timed.processFrame(d.clouds[1], d.stamps[1], 1, {});
+  EXPECT_FALSE(untimed.extracted_ahead);
+  EXPECT_TRUE(untimed.deskew_times.empty())
+      << "its own (no) times: " << untimed.deskew_times;
 }
 
 TEST(OdometryLookahead, ALookAheadScanBeforeTheFrameIsRefused)

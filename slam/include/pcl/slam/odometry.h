@@ -51,7 +51,9 @@ struct OdometryTimings
   double keyframe_ms = 0.0; ///< key-frame decision and local-map update
   double deskew_ms = 0.0;   ///< motion compensation (both passes)
   double visibility_ms = 0.0; ///< moving objects: visibility image, hidden map voxels
-  double total_ms = 0.0;    ///< the whole frame
+  /// The whole frame on the caller's thread (what a look-ahead prepared on its own
+  /// thread is not in it; OdometryFrameResult::extracted_ahead).
+  double total_ms = 0.0;
 };
 
 /// \brief The outcome of tracking one frame.
@@ -434,9 +436,10 @@ public:
   /// step's source points, and, when it will not be motion-compensated, its raster and
   /// ORB features (about half of a frame's work). The compensation needs this frame's
   /// motion, so a scan with point times is compensated, rasterized and described in its
-  /// own call. The next call takes what was prepared when its scan is \a next (same
-  /// cloud pointer and frame index); otherwise it is dropped. The poses are the same as
-  /// without the look-ahead.
+  /// own call. The next call takes what was prepared when it comes right after this one
+  /// with \a next's cloud pointer, frame index, timestamp and point times; otherwise it
+  /// is dropped (and a skipFrame between drops it). The cloud must not change until
+  /// then. The poses are the same as without the look-ahead.
   /// \throws std::invalid_argument when next.frame_index is not after \a frame_index
   OdometryFrameResult processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
                                    double timestamp_s,
