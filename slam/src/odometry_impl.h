@@ -271,7 +271,7 @@ struct Odometry::Impl
     /// Step 1: the points off the ground, and the levelling of the sensor's tilt.
     pcl::Indices non_ground_indices;
     Eigen::Isometry3f T_level_lidar = Eigen::Isometry3f::Identity();
-    /// Steps 2-3 are done (features and the dense source points, compensated).
+    /// Steps 2-3 are done (the non-ground points compensated, the features).
     bool extracted = false;
   };
   /// The outcome of trackFeatures.
@@ -285,7 +285,8 @@ struct Odometry::Impl
     std::vector<Pose3d> weak_estimates;
   };
 
-  /// A frame whose steps 0-3 are done (prepare), with the result they began.
+  /// A frame whose steps 0-1 (and maybe 2-3) are done (prepare), with the result they
+  /// began.
   struct Prepared
   {
     std::unique_ptr<Frame> frame;
@@ -300,13 +301,12 @@ struct Odometry::Impl
   /// Starts preparing \a next on ahead_thread (the frame at \a timestamp_s being the one
   /// before it).
   void launchAhead(const OdometryInput& next, double timestamp_s);
-  /// Steps 0-1 of a scan (range check, point times, ground removal) and the choice of
-  /// its dense source points, then, with \a motion or when the scan has no times to
-  /// compensate, steps 2-3 (finishPrepare). No state of the tracking is read or written
-  /// (only \a front and params): the look-ahead runs it on its thread. \a point_times
-  /// are checked here (unusable ones are ignored); with \a keep_times the frame keeps a
-  /// copy of them, else they must outlive the frame. \a frame_interval_s is the period
-  /// of azimuth times.
+  /// Steps 0-1 of a scan (range check, point times, ground removal), then, with
+  /// \a motion or when the scan has no times to compensate, steps 2-3 (finishPrepare). No
+  /// state of the tracking is read or written (only \a front and params): the look-ahead
+  /// runs it on its thread. \a point_times are checked here (unusable ones are ignored);
+  /// with \a keep_times the frame keeps a copy of them, else they must outlive the frame.
+  /// \a frame_interval_s is the period of azimuth times.
   Prepared prepare(FrontEnd& front,
                    const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
                    const std::vector<float>& point_times,
@@ -314,9 +314,9 @@ struct Odometry::Impl
                    double frame_interval_s,
                    const SweepMotion* motion,
                    OdometryFrameResult result) const;
-  /// Steps 2-3 of a prepared frame: the non-ground and dense source points compensated
-  /// with \a motion (when the scan has times and the motion a velocity), the raster,
-  /// ORB.
+  /// Steps 2-3 of a prepared frame: the non-ground points compensated with \a motion
+  /// (when the scan has times and the motion a velocity), the raster, ORB. (The dense
+  /// step's source points are chosen and compensated on the caller's thread: process.)
   void finishPrepare(FrontEnd& front,
                      Frame& frame,
                      OdometryFrameResult& result,

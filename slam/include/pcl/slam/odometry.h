@@ -106,9 +106,9 @@ struct OdometryFrameResult
   bool deskew_applied = false;
   bool deskew_second_pass = false;
   /// This scan was prepared on a second thread while the frame before was tracked
-  /// (Odometry::processFrame with a look-ahead scan): its ground removal and the choice
-  /// of the dense step's source points, and, unless it is motion-compensated, its
-  /// raster and ORB features. Their timings are those of that thread.
+  /// (Odometry::processFrame with a look-ahead scan): its ground removal and, unless it
+  /// is motion-compensated, its raster and ORB features. Their timings are those of that
+  /// thread.
   bool extracted_ahead = false;
   OdometryTimings timings;
 };
@@ -432,9 +432,9 @@ public:
                                    const std::vector<float>& point_times_s);
 
   /// \brief processFrame of this scan while \a next, the scan the next call will get,
-  /// is prepared on a second thread: its ground removal and the choice of the dense
-  /// step's source points, and, when it will not be motion-compensated, its raster and
-  /// ORB features (about half of a frame's work). The compensation needs this frame's
+  /// is prepared on a second thread: its range check, point times and ground removal,
+  /// and, when it will not be motion-compensated, its raster and ORB features (about
+  /// half of a frame's work). The compensation needs this frame's
   /// motion, so a scan with point times is compensated, rasterized and described in its
   /// own call. The next call takes what was prepared when it comes right after this one
   /// with \a next's cloud pointer, frame index, timestamp and point times; otherwise it
