@@ -26,7 +26,7 @@ const Drive&
 rawDrive()
 {
   static const Drive drive = pcl_rast_test::simulateScans(*pcl_rast_test::pathSimulator(
-      PathType::kLoop, 80, PathParams().revisit_fraction, 23, true));
+      PathType::kLoop, 40, PathParams().revisit_fraction, 23, true));
   return drive;
 }
 
@@ -154,7 +154,8 @@ TEST(OdometryLookahead, AScanThatDoesNotComeIsDropped)
 
 TEST(OdometryLookahead, ALookAheadScanBeforeTheFrameIsRefused)
 {
-  const Drive& d = rawDrive();
+  const Drive d = pcl_rast_test::simulateScans(
+      *pcl_rast_test::pathSimulator(PathType::kStraight, 5, 0.0, 23));
   Odometry odometry{OdometryParams()};
   try {
     odometry.processFrame(
