@@ -249,7 +249,6 @@ struct Odometry::Impl
     /// caller's outlive only the call).
     std::vector<float> own_times;
     Pose3d T_world_prior = Pose3d::Identity();        ///< constant-velocity prediction
-    Pose3d T_motion_prior = Pose3d::Identity();       ///< its motion from the last frame
     double dt = 0.1;                                  ///< frameInterval [s]
     std::optional<odometry_detail::PointTimes> times; ///< for the motion compensation
     std::optional<Twist> xi_sweep; ///< the motion the kept points are compensated with

@@ -50,7 +50,6 @@ Odometry::Impl::track(Frame& frame, OdometryFrameResult result)
   if (!frame.usable) // step 0 (prepare): status and message say why
     return result;
   frame.dt = frameInterval(result.timestamp_s);
-  frame.T_motion_prior = T_world_last.inverse() * frame.T_world_prior;
   const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input_ptr = frame.input_ptr;
   pcl::StopWatch watch;
 
