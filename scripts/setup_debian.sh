@@ -6,7 +6,7 @@ set -euo pipefail
 
 packages=(
   build-essential cmake pkg-config git
-  ninja-build           # the sanitizer builds of scripts/run_sanitizers.sh
+  ninja-build           # scripts/build.sh and the sanitizer builds
   libpcl-dev            # PCL 1.13 with VTK 9.1, FLANN, Eigen, Boost
   libopencv-dev         # OpenCV 4.6: ORB, images
   libceres-dev          # Ceres 2.1: bundle adjustment, pose graph
