@@ -275,11 +275,11 @@ VisibilityImage::seenPast(const Eigen::Vector3f& p, float margin_m) const
   return std::isfinite(nearest) && nearest > range + margin_m;
 }
 
-const VoxelPlaneMap::Voxel*
+int
 VoxelPlaneMap::planarVoxel(std::int64_t x, std::int64_t y, std::int64_t z) const
 {
   const int v = index_.find(packVoxelKey(x, y, z));
-  return v >= 0 && voxels_[v].planar && !voxels_[v].hidden ? &voxels_[v] : nullptr;
+  return v >= 0 && voxels_[v].planar && !voxels_[v].hidden ? v : -1;
 }
 
 bool
@@ -287,35 +287,59 @@ VoxelPlaneMap::plane(const Eigen::Vector3f& query,
                      Eigen::Vector3f& centroid,
                      Eigen::Vector3f& normal) const
 {
+  PlaneLookup lookup;
+  return plane(query, lookup, centroid, normal);
+}
+
+bool
+VoxelPlaneMap::plane(const Eigen::Vector3f& query,
+                     PlaneLookup& lookup,
+                     Eigen::Vector3f& centroid,
+                     Eigen::Vector3f& normal) const
+{
   const auto x = static_cast<std::int64_t>(std::floor(query.x() * inv_voxel_size_));
   const auto y = static_cast<std::int64_t>(std::floor(query.y() * inv_voxel_size_));
   const auto z = static_cast<std::int64_t>(std::floor(query.z() * inv_voxel_size_));
-  if (const int v = index_.find(packVoxelKey(x, y, z)); v >= 0) {
-    const Voxel& own = voxels_[v];
-    if (own.hidden)
-      return false; // what moved out of it must not pair through a neighbour either
-    if (own.planar) {
-      centroid = own.centroid;
-      normal = own.normal;
-      return true;
+  const VoxelKey key = packVoxelKey(x, y, z);
+  if (lookup.key != key) {
+    lookup = PlaneLookup();
+    lookup.key = key;
+    if (const int v = index_.find(key); v >= 0) {
+      const Voxel& own = voxels_[v];
+      if (own.hidden)
+        return false; // what moved out of it must not pair through a neighbour either
+      if (own.planar) {
+        lookup.own = true;
+        lookup.count = 1;
+        lookup.voxels[0] = v;
+      }
+    }
+    // The point may sit just off its surface's voxel: the face neighbours.
+    static const int kFaces[6][3] = {
+        {1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+    for (int f = 0; f < 6 && !lookup.own; ++f) {
+      const int v = planarVoxel(x + kFaces[f][0], y + kFaces[f][1], z + kFaces[f][2]);
+      if (v >= 0)
+        lookup.voxels[lookup.count++] = v;
     }
   }
-  // The point may sit just off its surface's voxel: try the face neighbours.
-  static const int kFaces[6][3] = {
-      {1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
-  float best_sq = std::numeric_limits<float>::max();
-  for (const auto& f : kFaces) {
-    const Voxel* voxel = planarVoxel(x + f[0], y + f[1], z + f[2]);
-    if (!voxel)
-      continue;
-    const float d_sq = (voxel->centroid - query).squaredNorm();
-    if (d_sq < best_sq) {
-      best_sq = d_sq;
-      centroid = voxel->centroid;
-      normal = voxel->normal;
+  if (lookup.count == 0)
+    return false;
+  int best = lookup.voxels[0];
+  if (!lookup.own) {
+    // The nearest centroid; the first of equals, in the faces' order.
+    float best_sq = (voxels_[best].centroid - query).squaredNorm();
+    for (int k = 1; k < lookup.count; ++k) {
+      const float d_sq = (voxels_[lookup.voxels[k]].centroid - query).squaredNorm();
+      if (d_sq < best_sq) {
+        best_sq = d_sq;
+        best = lookup.voxels[k];
+      }
     }
   }
-  return best_sq < std::numeric_limits<float>::max();
+  centroid = voxels_[best].centroid;
+  normal = voxels_[best].normal;
+  return true;
 }
 
 // ---------------------------------------------------------------------------
@@ -348,6 +372,7 @@ struct Linearisation
 Linearisation
 linearise(const Points3f& source,
           const VoxelPlaneMap& map,
+          std::vector<VoxelPlaneMap::PlaneLookup>& lookups,
           const Eigen::Matrix3d& R,
           const Eigen::Vector3d& t,
           double scale_m,
@@ -361,9 +386,9 @@ linearise(const Points3f& source,
   const Eigen::Matrix3f R_f = R.cast<float>();
   const Eigen::Vector3f t_f = t.cast<float>();
   Eigen::Vector3f c, n;
-  for (const auto& p : source) {
-    const Eigen::Vector3f q = R_f * p + t_f;
-    if (!map.plane(q, c, n))
+  for (std::size_t i = 0; i < source.size(); ++i) {
+    const Eigen::Vector3f q = R_f * source[i] + t_f;
+    if (!map.plane(q, lookups[i], c, n))
       continue;
     const double r = n.dot(q - c);
     if (std::abs(r) > max_distance_m)
@@ -435,12 +460,19 @@ registerToMap(const Points3f& source,
                                  ? std::min(options.initial_kernel_scale_m,
                                             params.max_correspondence_distance_m / 3.0)
                                  : params.max_correspondence_distance_m / 3.0;
+  // Each source point's last plane lookup, for the next iteration.
+  std::vector<VoxelPlaneMap::PlaneLookup> lookups(source.size());
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
     const double scale_m =
         std::max(params.min_kernel_scale_m, max_scale_m * std::pow(0.5, iteration));
-    Linearisation l =
-        linearise(source, map, R, t, scale_m, params.max_correspondence_distance_m,
-                  params.degeneracy_min_support > 0.0);
+    Linearisation l = linearise(source,
+                                map,
+                                lookups,
+                                R,
+                                t,
+                                scale_m,
+                                params.max_correspondence_distance_m,
+                                params.degeneracy_min_support > 0.0);
     result.iterations = iteration + 1;
     result.num_correspondences = l.paired;
     result.rmse_m = l.inliers > 0 ? std::sqrt(l.sum_sq / l.inliers) : 0.0;

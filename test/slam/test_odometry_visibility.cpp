@@ -12,6 +12,7 @@
 #include <numeric>
 #include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/odometry.h>
+#include <random>
 #include <vector>
 
 namespace {
@@ -92,6 +93,82 @@ TEST(VoxelPlaneMap, HidesWhatTheScanSeesThroughUntilTheNextCall)
   EXPECT_TRUE(map.plane(truck, centroid, normal));
   // A margin larger than the 20 m the scan saw past the truck hides nothing.
   EXPECT_EQ(map.hideSeenThrough(&image, Eigen::Isometry3f::Identity(), 40.0f, 25.0f), 0);
+}
+
+/// The dense step keeps each source point's last plane lookup for its next query
+/// (VoxelPlaneMap::PlaneLookup): the pairs must be those a fresh lookup gives, when a
+/// point stays in its voxel, when it moves into another, between planes of two
+/// neighbours (the nearest centroid changes inside one voxel) and around hidden voxels.
+TEST(VoxelPlaneMap, AKeptLookupGivesThePlaneAFreshOneGives)
+{
+  // Walls across x and along y at several offsets, a slanted roof: planar voxels with
+  // non-planar ones (corners, edges) between them.
+  pcl::PointCloud<pcl::PointXYZI> scene;
+  addWall(6.3, scene, 0.25);
+  addWall(9.7, scene, 0.25, 3.0, 4.0);
+  for (double x = 2.0; x <= 12.0; x += 0.25)
+    for (double z = -1.0; z <= 2.0; z += 0.25) {
+      pcl::PointXYZI p;
+      p.x = static_cast<float>(x);
+      p.y = static_cast<float>(-3.4 + 0.1 * z);
+      p.z = static_cast<float>(z);
+      scene.push_back(p);
+      p.y = 4.6f;
+      p.z = static_cast<float>(z + 0.3 * x);
+      scene.push_back(p);
+    }
+  VoxelPlaneMap map;
+  map.insert(toPoints(scene), Eigen::Vector3f::Zero());
+
+  std::mt19937 rng(29);
+  std::uniform_int_distribution<std::size_t> any_point(0, scene.size() - 1);
+  std::normal_distribution<float> off(0.0f, 0.4f), step(0.0f, 0.08f);
+  const auto compare = [&](const char* when, int& reused, int& paired, int& chosen) {
+    // 400 points near the surfaces, each queried 30 times along a small random walk
+    // (Gauss-Newton's steps), with a kept lookup against a fresh one every time.
+    for (int point = 0; point < 400; ++point) {
+      Eigen::Vector3f q = scene[any_point(rng)].getVector3fMap() +
+                          Eigen::Vector3f(off(rng), off(rng), off(rng));
+      VoxelPlaneMap::PlaneLookup kept;
+      for (int query = 0; query < 30; ++query) {
+        const pcl::rast::VoxelKey before = kept.key;
+        Eigen::Vector3f c_kept, n_kept, c_fresh, n_fresh;
+        const bool with_kept = map.plane(q, kept, c_kept, n_kept);
+        const bool fresh = map.plane(q, c_fresh, n_fresh);
+        ASSERT_EQ(with_kept, fresh) << when << ": point " << point << ", query " << query;
+        if (fresh) {
+          ASSERT_EQ(c_kept, c_fresh)
+              << when << ": point " << point << ", query " << query;
+          ASSERT_EQ(n_kept, n_fresh)
+              << when << ": point " << point << ", query " << query;
+          ++paired;
+          // Between neighbours' planes: the nearest centroid is chosen per query.
+          chosen += !kept.own && kept.count >= 2 ? 1 : 0;
+        }
+        reused += kept.key == before ? 1 : 0;
+        q += Eigen::Vector3f(step(rng), step(rng), step(rng));
+      }
+    }
+  };
+  int reused = 0, paired = 0, chosen = 0;
+  compare("whole map", reused, paired, chosen);
+  // The walk stays in its voxel most of the time, pairs often and often between two
+  // neighbours: the comparison is not between two empty answers.
+  std::cout << "of 12000 queries: " << reused << " in the kept voxel, " << paired
+            << " paired, " << chosen << " between neighbours\n";
+  EXPECT_GT(reused, 6000) << "of 12000 queries";
+  EXPECT_GT(paired, 3000) << "of 12000 queries";
+  EXPECT_GT(chosen, 300) << "of 12000 queries";
+
+  // Hide what a scan from the origin sees through (the near wall, seen past by a wider
+  // one behind it); the lookups of a map changed so are made afresh.
+  pcl::PointCloud<pcl::PointXYZI> after;
+  addWall(9.7, after, 0.05, 20.0, 7.0);
+  const VisibilityImage image(after);
+  ASSERT_GT(map.hideSeenThrough(&image, Eigen::Isometry3f::Identity(), 40.0f, 1.0f), 0);
+  reused = paired = chosen = 0;
+  compare("with hidden voxels", reused, paired, chosen);
+  EXPECT_GT(paired, 1000) << "of 12000 queries";
 }
 
 /// Hidden map voxels and dropped points per frame of a simulated HDL-64 drive.
