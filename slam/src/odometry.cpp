@@ -328,18 +328,20 @@ Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
   kf->odometry_map_scans = map_scans;
 
   // The voxelized scan the key-frame keeps (memory: keyframe_voxel_size_m) ...
-  const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
-  const std::vector<int> kept = odometry_detail::voxelDownsampleIndices(
-      cloud, params.keyframe_voxel_size_m, in_range);
-  auto voxels = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
-  voxels->header = cloud.header;
-  voxels->points.reserve(kept.size());
-  for (const int i : kept)
-    voxels->points.push_back(cloud.points[i]);
-  voxels->width = static_cast<std::uint32_t>(voxels->points.size());
-  voxels->height = 1;
-  voxels->is_dense = true;
-  kf->cloud = voxels;
+  if (params.keyframe_clouds) {
+    const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
+    const std::vector<int> kept = odometry_detail::voxelDownsampleIndices(
+        cloud, params.keyframe_voxel_size_m, in_range);
+    auto voxels = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    voxels->header = cloud.header;
+    voxels->points.reserve(kept.size());
+    for (const int i : kept)
+      voxels->points.push_back(cloud.points[i]);
+    voxels->width = static_cast<std::uint32_t>(voxels->points.size());
+    voxels->height = 1;
+    voxels->is_dense = true;
+    kf->cloud = voxels;
+  }
 
   insertIntoMap(cloud, result.T_world_lidar);
   keyframe = kf;

@@ -300,8 +300,16 @@ MapLocalizationParams::isValid(std::string* why) const
 struct MapLocalization::Impl
 {
   Impl(const SessionLocalizer& l, const OdometryParams& o, const MapLocalizationParams& p)
-      : localizer(l), odometry_params(o), params(p), odometry(std::make_unique<Odometry>(o))
+      : localizer(l), odometry_params(trackingOnly(o)), params(p),
+        odometry(std::make_unique<Odometry>(odometry_params))
   {}
+
+  /// The odometry tracks only: no map is made of its key-frames.
+  static OdometryParams trackingOnly(OdometryParams o)
+  {
+    o.keyframe_clouds = false;
+    return o;
+  }
 
   /// MapLocalization::addScan (\a next: the look-ahead scan, or null).
   LocalizationFrame add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_scan,

@@ -604,6 +604,28 @@ TEST(Odometry, KeyFrameRuleOfThePaper)
   for (const auto& r : results)
     EXPECT_LE(r.T_keyframe_lidar.translation().norm(), 3.0 + 1.5);
   EXPECT_GE(odometry.numKeyFrames(), 7u);
+
+  // A caller that only tracks (keyframe_clouds off): the same key-frames and poses,
+  // without the voxelized scan a map would be made of.
+  params.keyframe_clouds = false;
+  rast::Odometry tracking_only(params);
+  const auto tracked = run(tracking_only, seq);
+  ASSERT_EQ(tracked.size(), results.size());
+  int keyframes = 0;
+  for (std::size_t i = 0; i < results.size(); ++i) {
+    EXPECT_TRUE(tracked[i].T_world_lidar.matrix() == results[i].T_world_lidar.matrix())
+        << "frame " << i;
+    ASSERT_EQ(static_cast<bool>(tracked[i].keyframe),
+              static_cast<bool>(results[i].keyframe))
+        << "frame " << i;
+    if (results[i].keyframe) {
+      ++keyframes;
+      EXPECT_FALSE(tracked[i].keyframe->cloud) << "frame " << i;
+      ASSERT_TRUE(results[i].keyframe->cloud) << "frame " << i;
+      EXPECT_GT(results[i].keyframe->cloud->size(), 1000u) << "frame " << i;
+    }
+  }
+  EXPECT_GE(keyframes, 7);
 }
 
 TEST(Odometry, SkipFrameExtrapolatesAndIndicesMustIncrease)

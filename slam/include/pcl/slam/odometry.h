@@ -355,6 +355,11 @@ struct OdometryParams
   // ---- key-frames (safety rules besides the paper's two) ----
   /// Leaf of the voxelized scan a key-frame keeps (and adds to the local map) [m].
   double keyframe_voxel_size_m = 0.5;
+  /// Key-frames keep their voxelized scan (KeyFrame::cloud), which a map, the loop
+  /// closing and a saved session are made of. The odometry's own tracking does not
+  /// read it: a caller that only tracks (MapLocalization) turns it off, and the
+  /// key-frames' cloud is then null.
+  bool keyframe_clouds = true;
   /// Force a key-frame when tracking against the current one degrades: fewer
   /// inliers than this (and the frame has at least min_feature_inliers features).
   int keyframe_min_inliers = 30;
