@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <system_error>
 
 namespace pcl {
 namespace rast {
@@ -132,6 +133,8 @@ MotionHypothesisParams::isValid(std::string* why) const
   else if (!(guided_support_factor >= 1.0) || !std::isfinite(guided_support_factor))
     reason = "guided_support_factor must be finite and >= 1, got " +
              std::to_string(guided_support_factor);
+  else if (threads < 1 || threads > 2)
+    reason = "threads must be 1 or 2, got " + std::to_string(threads);
   if (why)
     *why = reason;
   return reason.empty();
@@ -586,6 +589,21 @@ Odometry::Impl::finishPrepare(FrontEnd& front,
   frame.extracted = true;
 }
 
+std::future<void>
+Odometry::Impl::onSearchThread(std::function<void()> work) const
+{
+  try {
+    if (!search_thread)
+      search_thread = std::make_unique<TaskThread<void>>();
+  } catch (const std::system_error&) {
+    return {}; // no thread to be had: the caller does the work itself
+  }
+  std::packaged_task<void()> task(std::move(work));
+  std::future<void> done = task.get_future();
+  search_thread->tasks.push(std::move(task));
+  return done;
+}
+
 void
 Odometry::Impl::launchAhead(const OdometryInput& next, double timestamp_s)
 {
@@ -605,7 +623,7 @@ Odometry::Impl::launchAhead(const OdometryInput& next, double timestamp_s)
         front_end_ahead, input, times, true, next_interval, nullptr, next_result);
   });
   if (!ahead_thread)
-    ahead_thread = std::make_unique<AheadThread>();
+    ahead_thread = std::make_unique<TaskThread<Prepared>>();
   Ahead a;
   a.cloud = next.cloud.get();
   a.frame_index = next.frame_index;

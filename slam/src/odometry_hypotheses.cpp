@@ -73,12 +73,16 @@ struct HypothesisSearch
 /// Also reports how well the best alternative did: a coarse run (converged or not)
 /// that ended farther than max_correspondence_distance_m or yaw_step_deg / 2 from the
 /// winner, so that the caller can tell a distinct optimum from an ambiguous one.
+/// Runs \a work elsewhere and returns its future, or an invalid one when it cannot.
+using Spawn = std::function<std::future<void>(std::function<void()>)>;
+
 HypothesisSearch
 bestDenseFromHypotheses(const Points3f& source,
                         const VoxelPlaneMap& map,
                         const std::vector<Pose3d>& starts,
                         const DenseTrackingParams& dense,
-                        const MotionHypothesisParams& params)
+                        const MotionHypothesisParams& params,
+                        const Spawn& spawn)
 {
   DenseTrackingParams coarse = dense;
   coarse.max_correspondence_distance_m = std::max(
@@ -86,18 +90,41 @@ bestDenseFromHypotheses(const Points3f& source,
   coarse.max_correction_m =
       std::max(dense.max_correction_m, params.coarse_max_correction_m);
   coarse.max_correction_deg = std::max(dense.max_correction_deg, params.yaw_step_deg);
-  std::vector<DenseResult> runs;
-  runs.reserve(starts.size());
+  // The coarse runs are independent (the map and the source are only read): every
+  // other one on the search thread when there is one, the rest here, and the best is
+  // chosen in the starts' order as if they had run one after the other.
+  std::vector<DenseResult> runs(starts.size());
+  const auto coarseRuns = [&](std::size_t first, std::size_t stride) {
+    for (std::size_t k = first; k < starts.size(); k += stride)
+      runs[k] = registerToMap(source, map, starts[k], coarse);
+  };
+  std::future<void> odd;
+  if (spawn && starts.size() > 1)
+    odd = spawn([&] { coarseRuns(1, 2); });
+  {
+    // Waits for the other thread even when a run here throws: it uses runs and source.
+    struct Joined
+    {
+      std::future<void>& f;
+      ~Joined()
+      {
+        if (f.valid())
+          f.wait();
+      }
+    } joined{odd};
+    coarseRuns(0, odd.valid() ? 2 : 1);
+    if (odd.valid())
+      odd.get(); // its exception, if any, here
+  }
   int best = -1;
-  for (const Pose3d& start : starts) {
-    runs.push_back(registerToMap(source, map, start, coarse));
-    const DenseResult& r = runs.back();
+  for (std::size_t k = 0; k < runs.size(); ++k) {
+    const DenseResult& r = runs[k];
     if (!r.success || r.degenerate_directions > 0)
       continue;
     if (best < 0 || r.num_correspondences > runs[best].num_correspondences ||
         (r.num_correspondences == runs[best].num_correspondences &&
          r.rmse_m < runs[best].rmse_m))
-      best = static_cast<int>(runs.size()) - 1;
+      best = static_cast<int>(k);
   }
   HypothesisSearch search;
   if (best < 0) {
@@ -202,8 +229,13 @@ Odometry::Impl::searchHypotheses(const Frame& frame,
                                                       track.weak_estimates,
                                                       max_travel_m,
                                                       params.turn_search);
+  Spawn spawn;
+  if (params.turn_search.threads > 1)
+    spawn = [this](std::function<void()> work) {
+      return onSearchThread(std::move(work));
+    };
   const HypothesisSearch search = bestDenseFromHypotheses(
-      frame.source, map, starts, params.dense, params.turn_search);
+      frame.source, map, starts, params.dense, params.turn_search, spawn);
   DenseResult dense = search.dense;
   result.degraded = true;
   const std::string why = "feature-consistency check failed (" +

@@ -9,6 +9,7 @@
 #include "stage_util.h"
 #include "work_queue.h"
 
+#include <functional>
 #include <future>
 #include <memory>
 #include <optional>
@@ -458,29 +459,35 @@ struct Odometry::Impl
     std::future<Prepared> job;
   };
   std::optional<Ahead> ahead;
-  /// The look-ahead's thread, started by the first look-ahead and kept: a thread
-  /// started per scan began about 1.4 ms late (measured in bench_front_end), on the
-  /// core of the thread that started it.
-  struct AheadThread
+  /// A thread of the odometry's own, running the tasks queued to it in order.
+  template <typename R> struct TaskThread
   {
-    AheadThread()
+    TaskThread()
         : thread([this] {
-            for (std::packaged_task<Prepared()> task; tasks.pop(task);) {
+            for (std::packaged_task<R()> task; tasks.pop(task);) {
               task();
-              task = {}; // lets go of the scan it held
+              task = {}; // lets go of what it held (the look-ahead's scan)
             }
           })
     {}
-    ~AheadThread()
+    ~TaskThread()
     {
       tasks.close(); // a task queued is still run
       thread.join();
     }
-    slam_detail::WorkQueue<std::packaged_task<Prepared()>> tasks;
+    slam_detail::WorkQueue<std::packaged_task<R()>> tasks;
     std::thread thread; ///< after tasks: starts once the queue exists
   };
-  /// Last member: destroyed first, its thread joined before anything it uses goes.
-  std::unique_ptr<AheadThread> ahead_thread;
+  /// \a work on the search thread (started by its first use and kept); an invalid
+  /// future when no thread can be had, and then nothing runs.
+  std::future<void> onSearchThread(std::function<void()> work) const;
+  /// The dense search's thread (MotionHypothesisParams::threads).
+  mutable std::unique_ptr<TaskThread<void>> search_thread;
+  /// The look-ahead's thread, started by the first look-ahead and kept: a thread
+  /// started per scan began about 1.4 ms late (measured in bench_front_end), on the
+  /// core of the thread that started it. Last member: destroyed first, its thread
+  /// joined before anything it uses goes (the search thread just before it).
+  std::unique_ptr<TaskThread<Prepared>> ahead_thread;
 };
 
 } // namespace rast

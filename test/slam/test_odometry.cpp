@@ -190,6 +190,11 @@ TEST(OdometryParams, DefaultsAreValidAndBadValuesAreRejected)
   params.turn_search.guided_refit_gate_m = std::numeric_limits<double>::infinity();
   expectInvalid(params, "turn_search.guided_refit_gate_m");
   params = rast::OdometryParams();
+  params.turn_search.threads = 3;
+  expectInvalid(params, "turn_search.threads must be 1 or 2, got 3");
+  params.turn_search.threads = 0;
+  expectInvalid(params, "turn_search.threads must be 1 or 2, got 0");
+  params = rast::OdometryParams();
   params.dense.young_map_scans = 0;
   expectInvalid(params, "dense.young_map_scans");
   params = rast::OdometryParams();
@@ -339,6 +344,21 @@ TEST(Odometry, ColdStartAtHighSpeedWithoutFeatures)
   // The scenario must exercise the fallback: the first frame after the start at least.
   EXPECT_NE(results[1].status, rast::TrackingStatus::kFeatures) << results[1].message;
   EXPECT_GE(without_features, 1);
+
+  // The coarse runs on one thread instead of two: the same search, the same poses.
+  int searched = 0;
+  for (const auto& r : results)
+    searched += r.message.find("motion hypotheses") != std::string::npos ? 1 : 0;
+  EXPECT_GE(searched, 1);
+  params.turn_search.threads = 1;
+  rast::Odometry one_thread(params);
+  const auto serial = run(one_thread, seq);
+  ASSERT_EQ(serial.size(), results.size());
+  for (std::size_t i = 0; i < results.size(); ++i) {
+    EXPECT_TRUE(serial[i].T_world_lidar.matrix() == results[i].T_world_lidar.matrix())
+        << "frame " << i << ": " << results[i].message << " / " << serial[i].message;
+    EXPECT_EQ(serial[i].message, results[i].message) << "frame " << i;
+  }
 }
 
 /// The start of KITTI 02 at 2 Hz (every 5th pose, 7.4-7.6 m between scans), simulated

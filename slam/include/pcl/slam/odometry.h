@@ -258,6 +258,10 @@ struct MotionHypothesisParams
   /// [m], RANSAC, dense ICP from their x, y and yaw; the result under which more
   /// features pair (guided_gate_m) is kept. 0 disables.
   double guided_refit_gate_m = 1.0;
+  /// Threads the coarse runs are spread over: 1 runs them one after the other on the
+  /// caller's thread; 2 runs every other one on a thread of the odometry's own. The
+  /// runs are independent, so the result is the same.
+  int threads = 2;
 
   /// \brief True when every member is valid; otherwise says why in *why.
   bool isValid(std::string* why = nullptr) const;
