@@ -59,6 +59,9 @@ motionHypotheses(const Pose3d& T_world_prior,
   return starts;
 }
 
+/// Runs \a work elsewhere and returns its future, or an invalid one when it cannot.
+using Spawn = std::function<std::future<void>(std::function<void()>)>;
+
 /// Outcome of the dense search over motion hypotheses.
 struct HypothesisSearch
 {
@@ -73,9 +76,7 @@ struct HypothesisSearch
 /// Also reports how well the best alternative did: a coarse run (converged or not)
 /// that ended farther than max_correspondence_distance_m or yaw_step_deg / 2 from the
 /// winner, so that the caller can tell a distinct optimum from an ambiguous one.
-/// Runs \a work elsewhere and returns its future, or an invalid one when it cannot.
-using Spawn = std::function<std::future<void>(std::function<void()>)>;
-
+/// \a spawn runs every other coarse run elsewhere (see below), or is empty.
 HypothesisSearch
 bestDenseFromHypotheses(const Points3f& source,
                         const VoxelPlaneMap& map,
