@@ -14,6 +14,10 @@
 #include <string>
 #include <sys/wait.h>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_features_tool {
+
 namespace fs = std::filesystem;
 
 namespace {
@@ -91,3 +95,5 @@ TEST(FeaturesTool, RealKittiScansGiveKeypointAndMatchImages)
   EXPECT_NEAR(std::stod(match[1]), 0.8, 0.2) << two.output;
   EXPECT_NEAR(std::stod(match[2]), 0.0, 0.2) << two.output;
 }
+
+} // namespace test_features_tool

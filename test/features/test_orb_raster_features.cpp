@@ -22,6 +22,10 @@
 #include <set>
 #include <stdexcept>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_orb_raster_features {
+
 using OrbRasterFeatureEstimator = pcl::rast::OrbRasterFeatureEstimator<pcl::PointXYZI>;
 using pcl::rast::OrbRasterFeatureParams;
 using pcl::rast::OrbRasterFeatureResult;
@@ -407,3 +411,5 @@ TEST(OrbRasterFeatures, RealScanPairMatchesReference)
   EXPECT_LT(t_error, 0.2f);
   EXPECT_LT(r_error_deg, 1.0f);
 }
+
+} // namespace test_orb_raster_features

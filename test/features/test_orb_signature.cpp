@@ -14,6 +14,10 @@
 #include <set>
 #include <string>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_orb_signature {
+
 namespace {
 
 /// Blocks of random footprint and height around the sensor, points every 5 cm on
@@ -165,3 +169,5 @@ TEST(RangeRasterImage, IndicesOutsideTheCloudThrow)
     EXPECT_NE(std::string(e.what()).find("-3"), std::string::npos) << e.what();
   }
 }
+
+} // namespace test_orb_signature

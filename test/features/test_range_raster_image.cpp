@@ -12,6 +12,10 @@
 #include <random>
 #include <stdexcept>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_range_raster_image {
+
 using RangeRasterImage = pcl::rast::RangeRasterImage<pcl::PointXYZI>;
 using pcl::rast::RangeRasterParams;
 using pcl::rast::RasterProjection;
@@ -262,3 +266,5 @@ TEST(RangeRasterImage, RejectsInvalidInput)
   params.pinhole.width_px = 0;
   EXPECT_FALSE(params.isValid());
 }
+
+} // namespace test_range_raster_image

@@ -26,6 +26,10 @@
 #include <string>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_hostile_inputs {
+
 namespace fs = std::filesystem;
 using pcl::rast::readScan;
 using pcl::rast::ScanFrame;
@@ -304,3 +308,5 @@ TEST(HostileTextFiles, RegressionFilesAreClearErrors)
   }
   EXPECT_GE(n, 10u);
 }
+
+} // namespace test_hostile_inputs

@@ -8,6 +8,10 @@
 
 #include <random>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_correspondence_rigid_registration {
+
 namespace {
 
 using pcl::rast::CorrespondenceRigidRegistration;
@@ -251,3 +255,5 @@ TEST(RegistrationFailure, InvalidParamsAndMissingInputThrow)
 }
 
 } // namespace
+
+} // namespace test_correspondence_rigid_registration

@@ -14,6 +14,10 @@
 #include <string>
 #include <tuple>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_dense_core {
+
 namespace {
 
 using pcl::rast::packVoxelKey;
@@ -274,3 +278,5 @@ TEST(RobustWeight, KernelsDownWeightLargeResiduals)
 }
 
 } // namespace
+
+} // namespace test_dense_core

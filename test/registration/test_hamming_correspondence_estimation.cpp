@@ -8,6 +8,10 @@
 
 #include <random>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_hamming_correspondence_estimation {
+
 namespace {
 
 using pcl::rast::HammingMatchParams;
@@ -281,3 +285,5 @@ TEST(HammingCorrespondenceEstimation, ValidationNamesTheBadValue)
 }
 
 } // namespace
+
+} // namespace test_hamming_correspondence_estimation

@@ -15,6 +15,10 @@
 #include <fstream>
 #include <random>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_point_to_plane_refinement {
+
 namespace {
 
 using pcl_rast_test::readMatrix4;
@@ -380,3 +384,5 @@ TEST(PointToPlaneRefinementRealData, ScanPairPcdRelativeIsTargetFromSource)
 }
 
 } // namespace
+
+} // namespace test_point_to_plane_refinement

@@ -13,6 +13,10 @@
 #include <pcl/rast/point_types.h>
 #include <pcl/registration/raster_orb_registration.h>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_raster_orb_registration {
+
 namespace {
 
 using pcl_rast_test::readMatrix4;
@@ -177,3 +181,5 @@ TEST(RasterORBRegistration, InvalidParametersThrowNamingTheValue)
   EXPECT_FALSE(params.isValid(&why));
   EXPECT_NE(why.find("registration.min_correspondences"), std::string::npos) << why;
 }
+
+} // namespace test_raster_orb_registration

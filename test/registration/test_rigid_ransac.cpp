@@ -8,6 +8,10 @@
 
 #include <random>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_rigid_ransac {
+
 namespace {
 
 using pcl::rast::RigidRansacParams;
@@ -197,3 +201,5 @@ TEST(RigidRansac, ParamsValidation)
 }
 
 } // namespace
+
+} // namespace test_rigid_ransac

@@ -7,6 +7,10 @@
 
 #include <random>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_umeyama_estimation {
+
 namespace {
 
 using pcl::rast::estimateRigidTransform;
@@ -121,3 +125,5 @@ TEST(UmeyamaEstimation, InvalidInputThrows)
 }
 
 } // namespace
+
+} // namespace test_umeyama_estimation

@@ -17,6 +17,10 @@
 #include <set>
 #include <stdexcept>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_sac_ground_removal {
+
 using pcl::rast::SACGroundRemovalParams;
 using Cloud = pcl::PointCloud<pcl::PointXYZI>;
 using GroundRemovalResult = pcl::rast::GroundRemovalResult<pcl::PointXYZI>;
@@ -302,12 +306,15 @@ planeAndBoxesAs(std::size_t num_ground, std::size_t num_per_box, unsigned seed)
   return cloud;
 }
 
+} // namespace
+
+// Outside the anonymous namespace: the typed tests derive from it, and a class in a
+// named namespace must not have a base of internal linkage (-Wsubobject-linkage, once
+// this file is compiled in a unity batch).
 template <typename PointT>
 class GroundFilter : public ::testing::Test
 {};
 TYPED_TEST_SUITE(GroundFilter, pcl_rast_test::XyzPointTypes);
-
-} // namespace
 
 TYPED_TEST(GroundFilter, KeepsObjectsRemovesGroundThroughBasePointer)
 {
@@ -436,3 +443,5 @@ TEST(GroundFilter, LevellingTransformOfATiltedCloud)
   // filter() never moves points.
   EXPECT_EQ(out[0].x, (*tilted)[20000].x);
 }
+
+} // namespace test_sac_ground_removal

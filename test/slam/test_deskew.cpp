@@ -9,6 +9,10 @@
 #include <random>
 #include <stdexcept>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_deskew {
+
 namespace {
 
 using namespace pcl::rast;
@@ -191,3 +195,5 @@ TEST(Deskew, NonFiniteTimesAndPointsAreLeftAsTheyAre)
 }
 
 } // namespace
+
+} // namespace test_deskew

@@ -14,6 +14,10 @@
 #include <string>
 #include <sys/wait.h>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_eval_tool {
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -175,3 +179,5 @@ TEST_F(EvalTool, ExitCodes)
 }
 
 } // namespace
+
+} // namespace test_eval_tool

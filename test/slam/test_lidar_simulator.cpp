@@ -24,6 +24,10 @@
 #include <pcl/simulation/lidar_simulator.h>
 #include <sstream>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_lidar_simulator {
+
 namespace {
 
 using pcl::rast::LidarSimulator;
@@ -2222,3 +2226,5 @@ TEST(LidarSimulator, GroundLevelsKeepEveryPassAboveItsOwnGround)
     }
   }
 }
+
+} // namespace test_lidar_simulator

@@ -20,6 +20,10 @@
 #include <set>
 #include <tuple>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_local_mapping {
+
 namespace {
 
 using namespace pcl::rast;
@@ -413,3 +417,5 @@ TEST(SlamMap, OftenVisitedTilesAreMergedOnTheWayWithExactMeans)
 }
 
 } // namespace
+
+} // namespace test_local_mapping

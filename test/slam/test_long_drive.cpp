@@ -16,6 +16,10 @@
 #include <stdexcept>
 #include <string>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_long_drive {
+
 namespace {
 
 using namespace pcl::rast;
@@ -203,3 +207,5 @@ TEST(LongDrive, DeterministicStageErrorEndsTheRun)
 }
 
 } // namespace
+
+} // namespace test_long_drive

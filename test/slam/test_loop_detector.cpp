@@ -23,6 +23,10 @@
 #include <random>
 #include <stdexcept>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_loop_detector {
+
 namespace {
 
 using pcl::rast::AppearanceRetrieval;
@@ -1035,3 +1039,5 @@ TEST(LoopDetector, DISABLED_MeasureRetrievalAndVerification)
       wrong,
       ms / pairs);
 }
+
+} // namespace test_loop_detector

@@ -20,6 +20,10 @@
 #include <tuple>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_map_storage {
+
 namespace {
 
 using namespace pcl::rast;
@@ -235,3 +239,5 @@ TEST(PcdStreamWriter, WritesWhatBuildMapGivesAtomically)
 }
 
 } // namespace
+
+} // namespace test_map_storage

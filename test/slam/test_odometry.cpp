@@ -16,6 +16,10 @@
 #include <fstream>
 #include <limits>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_odometry {
+
 namespace {
 
 using pcl_rast_test::readMatrix4;
@@ -839,3 +843,5 @@ TEST(Odometry, YoungMapTakesEveryScanSoTheStartDoesNotTilt)
   EXPECT_LT(sum_young, 0.8 * sum_old);
   EXPECT_LT(sum_prior, 0.8 * sum_young);
 }
+
+} // namespace test_odometry

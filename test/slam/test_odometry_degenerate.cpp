@@ -9,6 +9,10 @@
 #include <random>
 #include <string>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_odometry_degenerate {
+
 namespace {
 
 using pcl::rast::DenseTrackingParams;
@@ -148,3 +152,5 @@ TEST(DenseDegeneracy, BadThresholdIsRejectedNamingTheValue)
 }
 
 } // namespace
+
+} // namespace test_odometry_degenerate

@@ -15,6 +15,10 @@
 #include <string>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_odometry_deskew {
+
 namespace {
 
 using namespace pcl::rast;
@@ -146,3 +150,5 @@ TEST(OdometryDeskew, FrameNumberTimestampsTrackLikeSeconds)
       << seconds[1].message;
   EXPECT_NEAR(seconds.back().T_world_lidar.translation().x(), 5.0, 0.5);
 }
+
+} // namespace test_odometry_deskew

@@ -15,6 +15,10 @@
 #include <stdexcept>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_odometry_lookahead {
+
 namespace {
 
 using namespace pcl::rast;
@@ -171,3 +175,5 @@ TEST(OdometryLookahead, ALookAheadScanBeforeTheFrameIsRefused)
 }
 
 } // namespace
+
+} // namespace test_odometry_lookahead

@@ -21,6 +21,10 @@
 #include <sys/wait.h>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_odometry_tool {
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -311,3 +315,5 @@ TEST_F(OdometryTool, DeskewModeIsChosenAndReported)
 }
 
 } // namespace
+
+} // namespace test_odometry_tool

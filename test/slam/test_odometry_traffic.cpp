@@ -13,6 +13,10 @@
 #include <pcl/evaluation/trajectory_evaluation.h>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_odometry_traffic {
+
 namespace {
 
 using namespace pcl::rast;
@@ -140,3 +144,5 @@ TEST(OdometryTraffic, ATunnelAtSpeedKeepsTheVehiclesVelocity)
 }
 
 } // namespace
+
+} // namespace test_odometry_traffic

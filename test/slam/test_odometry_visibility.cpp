@@ -15,6 +15,10 @@
 #include <random>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_odometry_visibility {
+
 namespace {
 
 using pcl::rast::odometry_detail::toPoints;
@@ -234,3 +238,5 @@ TEST(OdometryVisibility, OffByDefault)
 }
 
 } // namespace
+
+} // namespace test_odometry_visibility

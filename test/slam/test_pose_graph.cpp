@@ -12,6 +12,10 @@
 #include <pcl/slam/pose_graph.h>
 #include <random>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_pose_graph {
+
 namespace {
 
 using pcl::rast::Pose3d;
@@ -435,3 +439,5 @@ TEST(G2oIo, ParkingGarageOptimizes)
 }
 
 } // namespace
+
+} // namespace test_pose_graph

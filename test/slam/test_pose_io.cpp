@@ -9,6 +9,10 @@
 #include <random>
 #include <string>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_pose_io {
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -305,3 +309,5 @@ TEST(PoseIo, RealKittiGroundTruth)
 }
 
 } // namespace
+
+} // namespace test_pose_io

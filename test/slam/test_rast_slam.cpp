@@ -18,6 +18,10 @@
 #include <memory>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_rast_slam {
+
 namespace {
 
 using namespace pcl::rast;
@@ -382,3 +386,5 @@ TEST(RastSlam, ReportsBadUse)
 }
 
 } // namespace
+
+} // namespace test_rast_slam

@@ -14,6 +14,10 @@
 #include <random>
 #include <string>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_rigid_pose {
+
 namespace {
 
 using namespace pcl::rast;
@@ -164,3 +168,5 @@ TEST(RigidPose, PosesFromOutsideAreProjectedWithinToleranceAndRejectedBeyond)
 }
 
 } // namespace
+
+} // namespace test_rigid_pose

@@ -13,6 +13,10 @@
 #include <stdexcept>
 #include <string>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_sensor_preset {
+
 namespace {
 
 using namespace pcl::rast;
@@ -111,3 +115,5 @@ TEST(SensorPreset, GuessesRealHdl32AsDenseEnoughForTheDefaults)
 }
 
 } // namespace
+
+} // namespace test_sensor_preset

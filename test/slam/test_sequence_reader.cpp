@@ -22,6 +22,10 @@
 #include <unistd.h>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_sequence_reader {
+
 namespace fs = std::filesystem;
 using pcl::rast::readScan;
 using pcl::rast::ScanFrame;
@@ -1105,3 +1109,5 @@ TEST(SequenceReaderRealData, ScanPairPlyAndPcd)
   EXPECT_EQ(first.cloud->size() + first.num_dropped_non_finite,
             69088u); // POINTS in header
 }
+
+} // namespace test_sequence_reader

@@ -17,6 +17,10 @@
 #include <string>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_session {
+
 namespace {
 
 using namespace pcl::rast;
@@ -425,3 +429,5 @@ TEST(Session, ASaveReplacesASessionWholeOrLeavesItAsItWas)
 }
 
 } // namespace
+
+} // namespace test_session

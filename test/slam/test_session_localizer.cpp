@@ -20,6 +20,10 @@
 #include <utility>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_session_localizer {
+
 namespace {
 
 using namespace pcl::rast;
@@ -488,3 +492,5 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
 }
 
 } // namespace
+
+} // namespace test_session_localizer

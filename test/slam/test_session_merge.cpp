@@ -19,6 +19,10 @@
 #include <pcl/slam/session_merge.h>
 #include <string>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_session_merge {
+
 namespace {
 
 using namespace pcl::rast;
@@ -255,3 +259,5 @@ TEST(SessionMerge, RefusesBadParametersAndAnEmptyDrive)
 }
 
 } // namespace
+
+} // namespace test_session_merge

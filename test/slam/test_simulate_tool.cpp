@@ -12,6 +12,10 @@
 #include <sys/wait.h>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_simulate_tool {
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -283,3 +287,5 @@ TEST_F(SimulateTool, KittiGroundTruthTrajectory)
 }
 
 } // namespace
+
+} // namespace test_simulate_tool

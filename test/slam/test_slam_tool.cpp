@@ -19,6 +19,10 @@
 #include <fstream>
 #include <sys/wait.h>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_slam_tool {
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -385,3 +389,5 @@ TEST_F(SlamTool, AnErrorInTheLoopClosingThreadStillWritesEveryOutputAndExitsThre
 }
 
 } // namespace
+
+} // namespace test_slam_tool

@@ -7,6 +7,10 @@
 #include <pcl/evaluation/trajectory_evaluation.h>
 #include <random>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_trajectory_evaluation {
+
 namespace {
 
 using namespace pcl::rast;
@@ -356,3 +360,5 @@ TEST(TrajectoryEvaluation, RealKitti00AgainstPerturbedSelf)
 }
 
 } // namespace
+
+} // namespace test_trajectory_evaluation

@@ -11,6 +11,10 @@
 #include <unistd.h>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_cli {
+
 namespace {
 
 using pcl_rast_tools::ArgParser;
@@ -178,3 +182,5 @@ TEST(StopSignals, ASecondSignalWaitsForTheOutputsToBeMoved)
   EXPECT_EQ(unguarded.first, 128 + SIGTERM);
   EXPECT_EQ(unguarded.second, "");
 }
+
+} // namespace test_cli

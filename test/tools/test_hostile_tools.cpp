@@ -23,6 +23,10 @@
 #include <string>
 #include <vector>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_hostile_tools {
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -257,3 +261,5 @@ TEST(HostileTools, EveryLyingPoseFileIsAClearErrorBeforeAnyWork)
     EXPECT_EQ(pcl_rast_test::countFiles(sim), 0u) << name;
   }
 }
+
+} // namespace test_hostile_tools

@@ -15,6 +15,10 @@
 #include <fstream>
 #include <string>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_localize_tool {
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -180,3 +184,5 @@ TEST_F(LocalizeTool, BadSessionsAndArgumentsAreRefusedBeforeAnyWork)
 }
 
 } // namespace
+
+} // namespace test_localize_tool

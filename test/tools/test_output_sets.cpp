@@ -25,6 +25,10 @@
 #include <thread>
 #include <unistd.h>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_output_sets {
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -523,3 +527,5 @@ TEST_F(OutputSets, TumGroundTruthIsPairedByTimestampLikeEval)
 }
 
 } // namespace
+
+} // namespace test_output_sets

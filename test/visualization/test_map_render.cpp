@@ -20,6 +20,10 @@
 #include <string>
 #include <unistd.h>
 
+// This file's names stay its own: a test program compiles several test files as
+// one translation unit (test/CMakeLists.txt).
+namespace test_map_render {
+
 namespace {
 
 using pcl::rast::MapRenderInput;
@@ -452,3 +456,5 @@ TEST(MapRender, NoMapPointsUnderTheTitle)
 }
 
 } // namespace
+
+} // namespace test_map_render
