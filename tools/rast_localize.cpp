@@ -266,7 +266,7 @@ run(int argc, char** argv)
   std::optional<ProgressBar> bar;
   if (!quiet)
     bar.emplace("Localize", reader.size());
-  std::size_t placements_tried = 0, prepared_ahead = 0;
+  std::size_t placements_tried = 0, prepared_ahead = 0, alignment_ahead = 0;
   const pcl::StopWatch run_watch;
   // Scans are read a few ahead on a thread of their own (about 2 ms a frame).
   Prefetcher prefetcher(reader, 4);
@@ -301,6 +301,7 @@ run(int argc, char** argv)
     }
     placements_tried += f.placement_tried ? 1 : 0;
     prepared_ahead += f.odometry_prepared_ahead ? 1 : 0;
+    alignment_ahead += f.alignment_prepared_ahead ? 1 : 0;
     if (f.status == rast::LocalizationStatus::kLocalized && first_localized < 0)
       first_localized = static_cast<int>(i);
     if (f.jump) {
@@ -411,7 +412,8 @@ run(int argc, char** argv)
       {"tentative_by_alignment", params.confirm_tentative_by_alignment},
       {"tried", placements_tried}};
   summary["lookahead"] = {{"on", !no_lookahead},
-                          {"frames_prepared_ahead", prepared_ahead}};
+                          {"frames_prepared_ahead", prepared_ahead},
+                          {"alignment_sources_prepared_ahead", alignment_ahead}};
   summary["render_backend"] = render.backend;
   summary["error"] = nullptr;
   outputs.publish(summary);

@@ -364,9 +364,60 @@ prepareSource(const pcl::PointCloud<pcl::PointXYZI>& cloud, const PointToPlanePa
   PointToPlaneParams source_params = params;
   source_params.target_voxel_size_m = params.source_voxel_size_m;
   PointToPlaneTarget source;
-  source.build(toPointVector(cloud), source_params,
-               static_cast<std::size_t>(std::max(params.max_source_points, 0)));
+  source.build(toPointVector(cloud),
+               source_params,
+               static_cast<std::size_t>(std::max(params.max_source_points, 0)),
+               PointToPlaneTarget::Times());
   return source;
+}
+
+PointToPlaneTarget
+prepareSource(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+              const std::vector<float>& times_s,
+              const PointToPlaneParams& params,
+              std::vector<float>& prepared_times_s)
+{
+  if (times_s.size() != cloud.size())
+    throw std::invalid_argument("prepareSource: " + std::to_string(times_s.size()) +
+                                " times for " + std::to_string(cloud.size()) + " points");
+  // The finite points and their times, as toPointVector() keeps them.
+  PointVector points;
+  std::vector<float> times;
+  points.reserve(cloud.size());
+  times.reserve(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const auto& p = cloud.points[i];
+    if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)) {
+      points.emplace_back(p.x, p.y, p.z);
+      times.push_back(times_s[i]);
+    }
+  }
+  PointToPlaneParams source_params = params;
+  source_params.target_voxel_size_m = params.source_voxel_size_m;
+  PointToPlaneTarget::Times with_times;
+  with_times.in = &times;
+  with_times.out = &prepared_times_s;
+  PointToPlaneTarget source;
+  source.build(points,
+               source_params,
+               static_cast<std::size_t>(std::max(params.max_source_points, 0)),
+               with_times);
+  return source;
+}
+
+PointToPlaneResult
+refinePointToPlane(const PointVector& source,
+                   const PointVector& source_normals,
+                   const PointToPlaneTarget& target,
+                   const Eigen::Isometry3d& T_target_source_guess,
+                   const PointToPlaneParams& params)
+{
+  checkParams(params, "refinePointToPlane");
+  if (source_normals.size() != source.size())
+    throw std::invalid_argument(
+        "refinePointToPlane: " + std::to_string(source_normals.size()) + " normals for " +
+        std::to_string(source.size()) + " points");
+  return refine(source, source_normals, target, T_target_source_guess, params);
 }
 
 PointToPlaneResult

@@ -36,6 +36,7 @@ struct VoxelStats
   Eigen::Vector3d sum = Eigen::Vector3d::Zero();
   Eigen::Matrix3d sum_outer = Eigen::Matrix3d::Zero();
   Eigen::Array3i cell;
+  double time_sum = 0.0; ///< of the points' times, when they have one (prepareSource())
 };
 
 /// Below these sizes a second thread costs more than it saves.
@@ -43,9 +44,11 @@ constexpr std::size_t kMinParallelPoints = 20000;
 constexpr std::size_t kMinParallelVoxels = 1000;
 
 /// Statistics of the finite points [first, last) into \a voxels, in order of first
-/// appearance, indexed by \a voxel_of_cell.
+/// appearance, indexed by \a voxel_of_cell; with their \a times (index-aligned) when
+/// given.
 void
 voxelStats(const PointVector& points,
+           const std::vector<float>* times,
            std::size_t first,
            std::size_t last,
            double inverse_voxel_m,
@@ -69,6 +72,8 @@ voxelStats(const PointVector& points,
     ++s.count;
     s.sum += p;
     s.sum_outer.noalias() += p * p.transpose();
+    if (times)
+      s.time_sum += (*times)[i];
   }
 }
 
@@ -192,17 +197,19 @@ PointToPlaneTarget::buildIndex(double cell_size_m)
 void
 PointToPlaneTarget::build(const PointVector& points, const PointToPlaneParams& params)
 {
-  build(points, params, 0);
+  build(points, params, 0, Times());
 }
 
 void
 PointToPlaneTarget::build(const PointVector& points,
                           const PointToPlaneParams& params,
-                          std::size_t max_planes)
+                          std::size_t max_planes,
+                          const Times& times)
 {
   std::string why;
   if (!params.isValid(&why))
     throw std::invalid_argument("PointToPlaneTarget::build: invalid params: " + why);
+  const std::vector<float>* times_in = times.in;
   // 1. Voxel statistics of the raw points in one pass (no per-point neighbour search).
   const double voxel_m =
       params.target_voxel_size_m > 0.0 ? params.target_voxel_size_m : 0.3;
@@ -216,9 +223,17 @@ PointToPlaneTarget::build(const PointVector& points,
   std::vector<VoxelStats> voxels, second;
   runBoth(
       parallel,
-      [&] { voxelStats(points, 0, half, inverse_voxel_m, voxel_of_cell, voxels); },
       [&] {
-        voxelStats(points, half, points.size(), inverse_voxel_m, second_of_cell, second);
+        voxelStats(points, times_in, 0, half, inverse_voxel_m, voxel_of_cell, voxels);
+      },
+      [&] {
+        voxelStats(points,
+                   times_in,
+                   half,
+                   points.size(),
+                   inverse_voxel_m,
+                   second_of_cell,
+                   second);
       });
   for (const VoxelStats& s2 : second) {
     const auto [v, inserted] =
@@ -231,6 +246,7 @@ PointToPlaneTarget::build(const PointVector& points,
     s1.count += s2.count;
     s1.sum += s2.sum;
     s1.sum_outer += s2.sum_outer;
+    s1.time_sum += s2.time_sum;
   }
   if (static_cast<int>(voxels.size()) < 3)
     throw std::invalid_argument(
@@ -249,10 +265,12 @@ PointToPlaneTarget::build(const PointVector& points,
   const bool parallel_fit = params.threads >= 2 && fitted >= kMinParallelVoxels;
   const std::size_t split = parallel_fit ? fitted / 2 : fitted;
   PointVector planar_points, planar_normals, second_points, second_normals;
+  std::vector<float> planar_times, second_times;
   const auto fit = [&](std::size_t first,
                        std::size_t last,
                        PointVector& out_points,
-                       PointVector& out_normals) {
+                       PointVector& out_normals,
+                       std::vector<float>& out_times) {
     out_points.reserve(last - first);
     out_normals.reserve(last - first);
     for (std::size_t j = first; j < last; ++j) {
@@ -261,22 +279,27 @@ PointToPlaneTarget::build(const PointVector& points,
       if (planeNormal(voxel, voxels, voxel_of_cell, params, normal)) {
         out_points.push_back(voxel.sum / voxel.count);
         out_normals.push_back(normal);
+        if (times_in)
+          out_times.push_back(static_cast<float>(voxel.time_sum / voxel.count));
       }
     }
   };
   runBoth(
       parallel_fit,
-      [&] { fit(0, split, planar_points, planar_normals); },
-      [&] { fit(split, fitted, second_points, second_normals); });
+      [&] { fit(0, split, planar_points, planar_normals, planar_times); },
+      [&] { fit(split, fitted, second_points, second_normals, second_times); });
   planar_points.insert(planar_points.end(), second_points.begin(), second_points.end());
   planar_normals.insert(
       planar_normals.end(), second_normals.begin(), second_normals.end());
+  planar_times.insert(planar_times.end(), second_times.begin(), second_times.end());
   if (planar_points.empty())
     throw std::invalid_argument(
         "PointToPlaneTarget::build: no planar target point among " +
         std::to_string(voxels.size()) + " voxels");
   points_ = std::move(planar_points);
   normals_ = std::move(planar_normals);
+  if (times.out)
+    *times.out = std::move(planar_times);
   buildIndex(std::max(voxel_m, 0.5 * params.max_correspondence_distance_m));
 }
 

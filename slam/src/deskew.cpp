@@ -228,5 +228,55 @@ deskewCloud(const pcl::PointCloud<pcl::PointXYZI>& cloud,
   return out;
 }
 
+void
+deskewPointsAndNormals(
+    std::vector<Eigen::Vector3d, Eigen::aligned_allocator<Eigen::Vector3d>>& points,
+    std::vector<Eigen::Vector3d, Eigen::aligned_allocator<Eigen::Vector3d>>& normals,
+    const std::vector<float>& times_s,
+    const Twist& xi_per_s,
+    int bins)
+{
+  if (times_s.size() != points.size())
+    throw std::invalid_argument(
+        "deskewPointsAndNormals: " + std::to_string(times_s.size()) + " times for " +
+        std::to_string(points.size()) + " points");
+  if (!normals.empty() && normals.size() != points.size())
+    throw std::invalid_argument(
+        "deskewPointsAndNormals: " + std::to_string(normals.size()) + " normals for " +
+        std::to_string(points.size()) + " points");
+  if (bins < 1)
+    throw std::invalid_argument("deskewPointsAndNormals: bins must be >= 1, got " +
+                                std::to_string(bins));
+  if (!xi_per_s.allFinite())
+    return;
+  double lo = std::numeric_limits<double>::infinity();
+  double hi = -lo;
+  for (const float t : times_s)
+    if (std::isfinite(t)) {
+      lo = std::min<double>(lo, t);
+      hi = std::max<double>(hi, t);
+    }
+  if (!(lo <= hi))
+    return;
+  // One transform per bin at its middle time, as deskewCloudInPlace() bins them.
+  const double span = hi - lo;
+  const int n = span > 0.0 ? bins : 1;
+  std::vector<Pose3d, Eigen::aligned_allocator<Pose3d>> transforms;
+  transforms.reserve(static_cast<std::size_t>(n));
+  for (int b = 0; b < n; ++b)
+    transforms.push_back(expSE3((lo + (b + 0.5) * span / n) * xi_per_s));
+  const double to_bin = span > 0.0 ? n / span : 0.0;
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    const float t = times_s[i];
+    if (!std::isfinite(t))
+      continue;
+    const int b = std::min(n - 1, static_cast<int>((t - lo) * to_bin));
+    const Pose3d& T = transforms[static_cast<std::size_t>(b)];
+    points[i] = T * points[i];
+    if (!normals.empty())
+      normals[i] = T.linear() * normals[i];
+  }
+}
+
 } // namespace rast
 } // namespace pcl

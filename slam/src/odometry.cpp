@@ -594,14 +594,11 @@ Odometry::Impl::onSearchThread(std::function<void()> work) const
 {
   try {
     if (!search_thread)
-      search_thread = std::make_unique<TaskThread<void>>();
+      search_thread = std::make_unique<slam_detail::TaskThread<void>>();
   } catch (const std::system_error&) {
     return {}; // no thread to be had: the caller does the work itself
   }
-  std::packaged_task<void()> task(std::move(work));
-  std::future<void> done = task.get_future();
-  search_thread->tasks.push(std::move(task));
-  return done;
+  return search_thread->run(std::move(work));
 }
 
 void
@@ -614,23 +611,21 @@ Odometry::Impl::launchAhead(const OdometryInput& next, double timestamp_s)
   next_result.frame_index = next.frame_index;
   next_result.timestamp_s = next.timestamp_s;
   next_result.extracted_ahead = true;
-  std::packaged_task<Prepared()> task([this,
-                                       input = next.cloud,
-                                       times = next.point_times_s,
-                                       next_interval,
-                                       next_result = std::move(next_result)] {
-    return prepare(
-        front_end_ahead, input, times, true, next_interval, nullptr, next_result);
-  });
   if (!ahead_thread)
-    ahead_thread = std::make_unique<TaskThread<Prepared>>();
+    ahead_thread = std::make_unique<slam_detail::TaskThread<Prepared>>();
   Ahead a;
   a.cloud = next.cloud.get();
   a.frame_index = next.frame_index;
   a.timestamp_s = next.timestamp_s;
   a.after_s = timestamp_s;
-  a.job = task.get_future();
-  ahead_thread->tasks.push(std::move(task));
+  a.job = ahead_thread->run([this,
+                             input = next.cloud,
+                             times = next.point_times_s,
+                             next_interval,
+                             next_result = std::move(next_result)] {
+    return prepare(
+        front_end_ahead, input, times, true, next_interval, nullptr, next_result);
+  });
   ahead.emplace(std::move(a));
 }
 

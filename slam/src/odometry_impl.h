@@ -459,35 +459,16 @@ struct Odometry::Impl
     std::future<Prepared> job;
   };
   std::optional<Ahead> ahead;
-  /// A thread of the odometry's own, running the tasks queued to it in order.
-  template <typename R> struct TaskThread
-  {
-    TaskThread()
-        : thread([this] {
-            for (std::packaged_task<R()> task; tasks.pop(task);) {
-              task();
-              task = {}; // lets go of what it held (the look-ahead's scan)
-            }
-          })
-    {}
-    ~TaskThread()
-    {
-      tasks.close(); // a task queued is still run
-      thread.join();
-    }
-    slam_detail::WorkQueue<std::packaged_task<R()>> tasks;
-    std::thread thread; ///< after tasks: starts once the queue exists
-  };
   /// \a work on the search thread (started by its first use and kept); an invalid
   /// future when no thread can be had, and then nothing runs.
   std::future<void> onSearchThread(std::function<void()> work) const;
   /// The dense search's thread (MotionHypothesisParams::threads).
-  mutable std::unique_ptr<TaskThread<void>> search_thread;
+  mutable std::unique_ptr<slam_detail::TaskThread<void>> search_thread;
   /// The look-ahead's thread, started by the first look-ahead and kept: a thread
   /// started per scan began about 1.4 ms late (measured in bench_front_end), on the
   /// core of the thread that started it. Last member: destroyed first, its thread
   /// joined before anything it uses goes (the search thread just before it).
-  std::unique_ptr<TaskThread<Prepared>> ahead_thread;
+  std::unique_ptr<slam_detail::TaskThread<Prepared>> ahead_thread;
 };
 
 } // namespace rast

@@ -2,22 +2,21 @@
 /// \brief SessionLocalizer: a scan placed on a session's map by appearance retrieval
 /// and loop verification (session_localizer.h).
 
-#include <pcl/slam/session_localizer.h>
-
-#include <pcl/slam/deskew.h>
-#include <pcl/slam/loop_detector.h>
-
-#include <pcl/common/time.h>
-
 #include "stage_util.h"
+#include "work_queue.h"
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <deque>
+#include <functional>
 #include <future>
 #include <map>
 #include <optional>
+#include <pcl/common/time.h>
+#include <pcl/slam/deskew.h>
+#include <pcl/slam/loop_detector.h>
+#include <pcl/slam/session_localizer.h>
 #include <stdexcept>
 
 namespace pcl {
@@ -327,6 +326,26 @@ struct MapLocalization::Impl
     double rmse_m = 0.0;
   };
 
+  /// A scan prepared for the map alignment: its voxel planes (prepareSource()) from
+  /// the raw scan, with the time of each when the scan is motion-compensated, which then
+  /// moves these few points rather than the whole scan. So a scan can be prepared before
+  /// the motion of the frame before it is known: on the source thread, while that frame
+  /// is aligned (look-ahead).
+  struct Source
+  {
+    PointVector points, normals;
+    std::vector<float> times; ///< per point; empty when the scan is not compensated
+    std::string error;        ///< why there are no points
+  };
+  /// The look-ahead's source being prepared, and the scan it is for.
+  struct AheadSource
+  {
+    const pcl::PointCloud<pcl::PointXYZI>* cloud = nullptr;
+    std::size_t frame_index = 0;
+    double after_s = 0.0; ///< prepared with the interval from the frame at this time
+    std::future<Source> job;
+  };
+
   const SessionLocalizer& localizer;
   OdometryParams odometry_params;
   MapLocalizationParams params;
@@ -401,7 +420,7 @@ struct MapLocalization::Impl
   std::deque<KeyFrameId> target_order;
   static constexpr std::size_t kMaxTargets = 32;
   /// A placement attempt running in the background (background_placement_lag), with
-  /// what taking it later needs. Declared last: it is waited for before the rest goes.
+  /// what taking it later needs. Declared after what it uses: it is waited for first.
   struct Pending
   {
     std::future<Placement> result;
@@ -409,6 +428,10 @@ struct MapLocalization::Impl
     std::size_t frame = 0; ///< frame count of its scan
   };
   std::optional<Pending> pending;
+  std::optional<AheadSource> ahead_source;
+  /// The look-ahead's thread for sources, started by its first use and kept. Last
+  /// member: joined before anything its task uses goes.
+  std::unique_ptr<slam_detail::TaskThread<Source>> source_thread;
 
   /// Whether this frame's attempt, when due, runs in the background: backed off, with
   /// no tentative placement waiting for a second one, and room for one at a time.
@@ -450,17 +473,123 @@ struct MapLocalization::Impl
               double dt,
               const Pose3d& step) const
   {
-    const DeskewParams& d = odometry_params.deskew;
-    if (!scan || scan->empty() || d.mode == DeskewMode::kOff || !(dt > 0.0))
-      return scan;
-    std::vector<float> times;
-    if (point_times_s.size() == scan->size())
-      times = point_times_s;
-    else if (d.mode == DeskewMode::kOn)
-      times = azimuthTimes(*scan, d.sweep_period_s > 0.0 ? d.sweep_period_s : dt, d.sweep);
+    const std::vector<float> times = sweepTimes(scan, point_times_s, dt);
     if (times.empty())
       return scan;
-    return deskewCloud(*scan, times, logSE3(step) / dt, d.bins);
+    return deskewCloud(*scan, times, logSE3(step) / dt, odometry_params.deskew.bins);
+  }
+
+  /// The times compensated() moves the points of \a scan by (\a dt s after the scan
+  /// before); empty when it leaves the scan as it is.
+  std::vector<float> sweepTimes(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+                                const std::vector<float>& point_times_s,
+                                double dt) const
+  {
+    const DeskewParams& d = odometry_params.deskew;
+    if (!scan || scan->empty() || d.mode == DeskewMode::kOff || !(dt > 0.0))
+      return {};
+    if (point_times_s.size() == scan->size())
+      return point_times_s;
+    if (d.mode == DeskewMode::kOn)
+      return azimuthTimes(*scan, d.sweep_period_s > 0.0 ? d.sweep_period_s : dt, d.sweep);
+    return {};
+  }
+
+  /// The source of \a scan with \a times (sweepTimes(); empty: none), not moved yet.
+  static Source prepareRaw(const pcl::PointCloud<pcl::PointXYZI>& scan,
+                           const std::vector<float>& times,
+                           const PointToPlaneParams& alignment)
+  {
+    Source source;
+    try {
+      const PointToPlaneTarget prepared =
+          times.empty() ? prepareSource(scan, alignment)
+                        : prepareSource(scan, times, alignment, source.times);
+      source.points = prepared.points();
+      source.normals = prepared.normals();
+    } catch (const std::invalid_argument& e) {
+      source = Source();
+      source.error = std::string("scan: ") + e.what();
+    }
+    return source;
+  }
+
+  /// The look-ahead's source when it is for this scan (\a scan, its index, and the
+  /// interval from the frame at \a previous_s), taken; none otherwise (an unused one is
+  /// dropped).
+  std::optional<AheadSource> takeAhead(const pcl::PointCloud<pcl::PointXYZI>* scan,
+                                       std::size_t frame_index,
+                                       const std::optional<double>& previous_s)
+  {
+    std::optional<AheadSource> a = std::move(ahead_source);
+    ahead_source.reset();
+    if (a && (a->cloud != scan || a->frame_index != frame_index || !previous_s ||
+              a->after_s != *previous_s))
+      a.reset(); // waits for its thread
+    return a;
+  }
+
+  /// Whether the next frame will likely be aligned to the map (so the look-ahead
+  /// prepares its source): the map confirmed a recent frame, or a tentative placement
+  /// waits for confirmation.
+  bool alignmentLikely() const
+  {
+    return (T_world_previous && tracking_only < params.max_realign_frames) ||
+           tentativeToConfirm();
+  }
+
+  /// Prepare the look-ahead scan \a next's source on the source thread, for the frame
+  /// after the one at \a timestamp_s.
+  void prepareAhead(const OdometryInput& next, double timestamp_s)
+  {
+    ahead_source.reset(); // waits for an earlier one that was not taken
+    if (!next.cloud || next.cloud->empty())
+      return;
+    const double next_dt =
+        (next.timestamp_s - timestamp_s) * odometry_params.deskew.seconds_per_timestamp;
+    std::vector<float> times =
+        sweepTimes(next.cloud,
+                   next.point_times_s,
+                   next_dt > 0.0 && std::isfinite(next_dt) ? next_dt : 0.0);
+    if (!source_thread)
+      source_thread = std::make_unique<slam_detail::TaskThread<Source>>();
+    AheadSource a;
+    a.cloud = next.cloud.get();
+    a.frame_index = next.frame_index;
+    a.after_s = timestamp_s;
+    a.job = source_thread->run(
+        [cloud = next.cloud, times = std::move(times), alignment = params.alignment] {
+          return prepareRaw(*cloud, times, alignment);
+        });
+    ahead_source.emplace(std::move(a));
+  }
+
+  /// This frame's source, moved by its motion \a step over \a dt s: the one the
+  /// look-ahead prepared for this scan (\a ahead, taken), else prepared now.
+  Source source(std::optional<AheadSource>& ahead,
+                const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+                const std::vector<float>& point_times_s,
+                double dt,
+                const Pose3d& step) const
+  {
+    Source out;
+    if (ahead) {
+      out = ahead->job.get();
+      ahead.reset();
+    } else {
+      if (!scan || scan->empty()) {
+        out.error = "scan: no points";
+        return out;
+      }
+      out = prepareRaw(*scan, sweepTimes(scan, point_times_s, dt), params.alignment);
+    }
+    if (!out.times.empty() && dt > 0.0)
+      deskewPointsAndNormals(out.points,
+                             out.normals,
+                             out.times,
+                             logSE3(step) / dt,
+                             odometry_params.deskew.bins);
+    return out;
   }
 
   std::shared_ptr<const PointToPlaneTarget> target(const KeyFrame& kf)
@@ -507,7 +636,7 @@ struct MapLocalization::Impl
 
   /// Align the scan to the nearest key-frames from \a predicted; the first that
   /// confirms the pose wins.
-  std::optional<Alignment> alignToMap(const pcl::PointCloud<pcl::PointXYZI>& scan,
+  std::optional<Alignment> alignToMap(const std::function<const Source&()>& scan,
                                       const Pose3d& predicted,
                                       std::string& why)
   {
@@ -516,11 +645,9 @@ struct MapLocalization::Impl
       why = "no key-frame of the map within " + std::to_string(params.map_radius_m) + " m";
       return std::nullopt;
     }
-    PointToPlaneTarget source;
-    try {
-      source = prepareSource(scan, params.alignment);
-    } catch (const std::invalid_argument& e) {
-      why = std::string("scan: ") + e.what();
+    const Source& source = scan();
+    if (source.points.empty()) {
+      why = source.error;
       return std::nullopt;
     }
     for (const KeyFrame* kf : near) {
@@ -528,7 +655,8 @@ struct MapLocalization::Impl
       if (map->empty())
         continue;
       const Pose3d guess = kf->T_world_keyframe.inverse() * predicted;
-      const PointToPlaneResult r = refinePointToPlane(source, *map, guess, params.alignment);
+      const PointToPlaneResult r = refinePointToPlane(
+          source.points, source.normals, *map, guess, params.alignment);
       if (!r.success) {
         why = "key-frame " + std::to_string(kf->id) + ": " + r.message;
         continue;
@@ -635,11 +763,11 @@ struct MapLocalization::Impl
   /// the odometry to the scan (odometry pose \a T_odom_lidar)
   /// (MapLocalizationParams::confirm_tentative_by_alignment); nullopt when there is
   /// none to confirm or the map does not confirm it. \a how says what confirmed what.
-  std::optional<Alignment> confirmTentative(const pcl::PointCloud<pcl::PointXYZI>& scan,
+  std::optional<Alignment> confirmTentative(const std::function<const Source&()>& scan,
                                             const Pose3d& T_odom_lidar,
                                             std::string& how)
   {
-    if (!tentativeToConfirm() || scan.empty())
+    if (!tentativeToConfirm())
       return std::nullopt;
     const Pose3d moved = normalizedPose(recent_placement->T_world_lidar *
                                         (recent_placement->T_odom_lidar.inverse() * T_odom_lidar));
@@ -767,6 +895,12 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
   f.timestamp_s = timestamp_s;
   const double dt = m.interval(timestamp_s);
   const std::optional<Pose3d> velocity_step = m.velocityStep(dt);
+  // The source of this scan the look-ahead prepared; the next scan's is prepared
+  // meanwhile, when it will likely be aligned too.
+  std::optional<Impl::AheadSource> ahead =
+      m.takeAhead(raw_scan.get(), frame_index, m.last_timestamp_s);
+  if (next && m.alignmentLikely())
+    m.prepareAhead(*next, timestamp_s);
 
   // The frame's motion: from the map's velocity while the map tracks (the odometry
   // rests), else from the odometry (from the map's velocity for its first frame).
@@ -798,6 +932,16 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
       compensated_scan = m.compensated(raw_scan, point_times_s, dt, compensation_step);
     return compensated_scan;
   };
+  // Its source for the map alignment, compensated with the same step.
+  std::optional<Impl::Source> source;
+  const std::function<const Impl::Source&()> alignment_source =
+      [&]() -> const Impl::Source& {
+    if (!source) {
+      f.alignment_prepared_ahead = ahead.has_value();
+      source = m.source(ahead, raw_scan, point_times_s, dt, compensation_step);
+    }
+    return *source;
+  };
   m.last_timestamp_s = timestamp_s; // the next step starts from this frame's pose
   std::optional<Pose3d> predicted;
   if (m.T_world_previous)
@@ -808,7 +952,7 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
     why = std::to_string(m.tracking_only) +
           " frames since the map last confirmed the pose: only a placement localizes again";
   } else if (predicted && has_points) {
-    std::optional<Impl::Alignment> a = m.alignToMap(*scan(), *predicted, why);
+    std::optional<Impl::Alignment> a = m.alignToMap(alignment_source, *predicted, why);
     if (a) {
       if (std::string worse = m.suddenlyWorse(a->rmse_m); !worse.empty()) {
         why = "key-frame " + std::to_string(a->keyframe) + ": " + worse;
@@ -874,7 +1018,7 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
   std::string how;
   if (const std::optional<Impl::Alignment> a =
           has_points && m.tentativeToConfirm()
-              ? m.confirmTentative(*scan(), odo->T_world_lidar, how)
+              ? m.confirmTentative(alignment_source, odo->T_world_lidar, how)
               : std::nullopt) {
     Placement confirmed;
     confirmed.success = true;

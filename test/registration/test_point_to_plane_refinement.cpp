@@ -2,17 +2,15 @@
 /// \brief Point-to-plane refinement: convergence on a synthetic structured scene from a
 /// 0.5 m / 5 deg perturbation, failure paths, and accuracy on the two real scan pairs.
 
-#include <pcl/registration/point_to_plane_refinement.h>
-
 #include "test_data.h"
-
-#include <pcl/io/pcd_io.h>
-#include <pcl/io/ply_io.h>
-
-#include <gtest/gtest.h>
 
 #include <chrono>
 #include <fstream>
+#include <gtest/gtest.h>
+#include <limits>
+#include <pcl/io/pcd_io.h>
+#include <pcl/io/ply_io.h>
+#include <pcl/registration/point_to_plane_refinement.h>
 #include <random>
 
 // This file's names stay its own: a test program compiles several test files as
@@ -311,6 +309,73 @@ TEST(PointToPlaneRefinement, TwoThreadsPrepareTheSameTarget)
   two.threads = 3;
   EXPECT_FALSE(two.isValid(&why));
   EXPECT_NE(why.find("threads must be 1 or 2, got 3"), std::string::npos) << why;
+}
+
+/// A source prepared with its points' times (a raw sweep) keeps the planes of the one
+/// prepared without, and gives each the mean time of its voxel's points: with times
+/// linear in x, the mean time is that of the mean point. Then it refines as the
+/// prepared source does, given as points and normals.
+TEST(PointToPlaneRefinement, PreparedSourceCarriesTheMeanTimeOfItsVoxels)
+{
+  const PointVector points = sampleScene(4, 100);
+  pcl::PointCloud<pcl::PointXYZI> cloud;
+  std::vector<float> times;
+  for (const auto& p : points) {
+    pcl::PointXYZI q;
+    q.getVector3fMap() = p.cast<float>();
+    cloud.push_back(q);
+    times.push_back(static_cast<float>(1e-3 * p.x()));
+  }
+  cloud[11].y = std::numeric_limits<float>::quiet_NaN(); // dropped with its time
+  PointToPlaneParams params;
+  for (const int threads : {1, 2}) {
+    params.threads = threads;
+    const PointToPlaneTarget plain = pcl::rast::prepareSource(cloud, params);
+    std::vector<float> prepared_times;
+    const PointToPlaneTarget timed =
+        pcl::rast::prepareSource(cloud, times, params, prepared_times);
+    ASSERT_GT(plain.size(), 500u);
+    ASSERT_EQ(timed.size(), plain.size());
+    ASSERT_EQ(prepared_times.size(), timed.size());
+    for (std::size_t i = 0; i < timed.size(); ++i) {
+      ASSERT_EQ(timed.points()[i], plain.points()[i]) << i;
+      ASSERT_EQ(timed.normals()[i], plain.normals()[i]) << i;
+      ASSERT_NEAR(prepared_times[i], 1e-3 * timed.points()[i].x(), 1e-6) << i;
+    }
+    // Refined as points and normals, as the prepared source itself.
+    PointToPlaneTarget target;
+    target.build(sampleScene(5, 100), params);
+    const Eigen::Isometry3d guess = makeTransform(0.5, 0.0, 1.0, {0.2, -0.1, 0.0});
+    const pcl::rast::PointToPlaneResult a =
+        pcl::rast::refinePointToPlane(timed, target, guess, params);
+    const pcl::rast::PointToPlaneResult b = pcl::rast::refinePointToPlane(
+        timed.points(), timed.normals(), target, guess, params);
+    ASSERT_TRUE(a.success) << a.message;
+    EXPECT_TRUE(a.T_target_source.isApprox(b.T_target_source, 1e-12));
+    EXPECT_EQ(a.num_correspondences, b.num_correspondences);
+    EXPECT_LT(translationError(a.T_target_source, Eigen::Isometry3d::Identity()), 0.02);
+  }
+  std::vector<float> out;
+  try {
+    pcl::rast::prepareSource(cloud, std::vector<float>(7, 0.0f), params, out);
+    ADD_FAILURE() << "a time count that is not the point count must throw";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("7 times for"), std::string::npos) << e.what();
+  }
+  PointToPlaneTarget target;
+  target.build(points, params);
+  const PointVector some(10, Eigen::Vector3d::Zero());
+  try {
+    pcl::rast::refinePointToPlane(some,
+                                  PointVector(9, Eigen::Vector3d::UnitZ()),
+                                  target,
+                                  Eigen::Isometry3d::Identity(),
+                                  params);
+    ADD_FAILURE() << "a normal count that is not the point count must throw";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("9 normals for 10 points"), std::string::npos)
+        << e.what();
+  }
 }
 
 // ---------------------------------------------------------------- real scan pairs

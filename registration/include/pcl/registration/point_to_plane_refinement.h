@@ -191,9 +191,23 @@ public:
 private:
   friend PointToPlaneTarget
   prepareSource(const pcl::PointCloud<pcl::PointXYZI>& cloud, const PointToPlaneParams& params);
-  /// build() fitting planes on about 2 * max_planes evenly spread voxels only (0: all).
-  void
-  build(const PointVector& points, const PointToPlaneParams& params, std::size_t max_planes);
+  friend PointToPlaneTarget prepareSource(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                                          const std::vector<float>& times_s,
+                                          const PointToPlaneParams& params,
+                                          std::vector<float>& prepared_times_s);
+  /// Per-point times of build(): the raw points' (index-aligned) in, the mean time of
+  /// each planar point's voxel out.
+  struct Times
+  {
+    const std::vector<float>* in = nullptr;
+    std::vector<float>* out = nullptr;
+  };
+  /// build() fitting planes on about 2 * max_planes evenly spread voxels only (0: all),
+  /// with the points' times when \a times has them.
+  void build(const PointVector& points,
+             const PointToPlaneParams& params,
+             std::size_t max_planes,
+             const Times& times);
   void
   buildIndex(double cell_size_m);
 
@@ -231,6 +245,37 @@ refinePointToPlane(const PointToPlaneTarget& source,
 PointToPlaneTarget
 prepareSource(const pcl::PointCloud<pcl::PointXYZI>& cloud,
               const PointToPlaneParams& params = PointToPlaneParams());
+
+/// \brief prepareSource() of a raw sweep whose points were measured at different times
+/// (seconds, \a times_s index-aligned with \a cloud): \a prepared_times_s gets,
+/// index-aligned with the result's points(), the mean time of the raw points whose mean
+/// each prepared point is.
+///
+/// Moving each prepared point and its normal by the sensor's motion at that time (motion
+/// compensation after the preparation, e.g. deskewPointsAndNormals()) then stands in for
+/// preparing the compensated scan: the scan can be prepared before its motion is known
+/// (on another thread while the scan before it is registered), and only the few prepared
+/// points are moved. For a voxel's mean this is exact for a translation, which is linear
+/// in time; a rotation rate w adds at most about |w| x the voxel's size x the spread of
+/// its points' times (under 1 cm at 0.5 rad/s for 0.5 m voxels and a 10 Hz sweep).
+/// \throws std::invalid_argument on invalid params, a time count that is not the point
+/// count, or too few points
+PointToPlaneTarget prepareSource(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                                 const std::vector<float>& times_s,
+                                 const PointToPlaneParams& params,
+                                 std::vector<float>& prepared_times_s);
+
+/// \brief Refine a prepared source given as its points and their unit normals
+/// (index-aligned; e.g. the points() and normals() of prepareSource(), moved), as the
+/// overload on a prepared source does.
+/// \throws std::invalid_argument on invalid params, an empty target or a normal count
+/// that is not the point count
+PointToPlaneResult
+refinePointToPlane(const PointVector& source,
+                   const PointVector& source_normals,
+                   const PointToPlaneTarget& target,
+                   const Eigen::Isometry3d& T_target_source_guess,
+                   const PointToPlaneParams& params = PointToPlaneParams());
 
 /// \brief Prepare the source scan (prepareSource()), then refine with both normals; when
 /// the source has no planar points, refine its voxelized points instead.

@@ -21,6 +21,7 @@
 ///   tau(a) = -wrap(a - reference) / (2 pi) * period.
 
 #include <Eigen/Core>
+#include <Eigen/StdVector>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 #include <pcl/rast/rigid_pose.h>
@@ -88,6 +89,19 @@ void deskewCloudInPlace(pcl::PointCloud<pcl::PointXYZI>& cloud,
                         const std::vector<float>& times_s,
                         const Twist& xi_per_s,
                         int bins = 512);
+
+/// \brief Motion-compensate points and their unit normals (e.g. a source prepared from a
+/// raw sweep, pcl::rast::prepareSource() with times): each point moved by eq. (1) with
+/// its time from \a times_s, each normal rotated by the same transform; binned like
+/// deskewCloud(). Points with a non-finite time are left as they are.
+/// \throws std::invalid_argument when the sizes differ (\a normals may be empty) or
+/// bins < 1.
+void deskewPointsAndNormals(
+    std::vector<Eigen::Vector3d, Eigen::aligned_allocator<Eigen::Vector3d>>& points,
+    std::vector<Eigen::Vector3d, Eigen::aligned_allocator<Eigen::Vector3d>>& normals,
+    const std::vector<float>& times_s,
+    const Twist& xi_per_s,
+    int bins = 512);
 
 } // namespace rast
 } // namespace pcl

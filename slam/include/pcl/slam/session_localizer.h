@@ -239,6 +239,9 @@ struct LocalizationFrame
   bool odometry_ran = false; ///< the odometry tracked this frame (see track_on_map)
   /// ... and took the scan prepared ahead (addScan with a look-ahead scan).
   bool odometry_prepared_ahead = false;
+  /// The map alignment took its source (the scan's voxel planes) prepared ahead, while
+  /// the frame before was processed (addScan with a look-ahead scan).
+  bool alignment_prepared_ahead = false;
   bool jump = false;     ///< that placement was a jump away from the prediction
   double jump_m = 0.0;   ///< how far
   KeyFrameId keyframe = 0; ///< the session key-frame it was aligned to or placed on
