@@ -316,8 +316,9 @@ Odometry::Impl::commitPose(const OdometryFrameResult& result)
 KeyFrame::Ptr
 Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
                              const RasterFeatureSet& features,
-                             const pcl::PointCloud<pcl::PointXYZI>& cloud)
+                             const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud_ptr)
 {
+  const pcl::PointCloud<pcl::PointXYZI>& cloud = *cloud_ptr;
   auto kf = std::make_shared<KeyFrame>();
   kf->id = next_keyframe_id++;
   kf->frame_index = result.frame_index;
@@ -346,7 +347,7 @@ Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
     kf->cloud = voxels;
   }
 
-  insertIntoMap(cloud, result.T_world_lidar);
+  insertIntoMap(cloud_ptr, result.T_world_lidar);
   keyframe = kf;
   T_world_keyframe = result.T_world_lidar;
   return kf;
@@ -356,8 +357,26 @@ Odometry::Impl::makeKeyFrame(const OdometryFrameResult& result,
 /// already gives every map voxel on a surface enough points for a plane (4 x 4 per
 /// voxel face).
 void
-Odometry::Impl::insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+Odometry::Impl::insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
                               const Pose3d& T_world_lidar)
+{
+  // One at a time, in order: the map is the same as inserted here.
+  finishMapInsertion();
+  ++map_scans;
+  auto work = [this, cloud, T_world_lidar] { insertNow(*cloud, T_world_lidar); };
+  try {
+    if (!map_thread)
+      map_thread = std::make_unique<slam_detail::TaskThread<void>>();
+  } catch (const std::system_error&) {
+    work(); // no thread to be had: here
+    return;
+  }
+  map_insertion = map_thread->run(std::move(work));
+}
+
+void
+Odometry::Impl::insertNow(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                          const Pose3d& T_world_lidar)
 {
   const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
   const Eigen::Isometry3f T = T_world_lidar.cast<float>();
@@ -365,8 +384,7 @@ Odometry::Impl::insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud,
   for (const int i : odometry_detail::voxelDownsampleIndices(
            cloud, params.dense.map_voxel_size_m / 4.0, in_range))
     points_world.push_back(T * cloud.points[i].getVector3fMap());
-  map.insert(points_world, T.translation());
-  ++map_scans;
+  local_map.insert(points_world, T.translation());
 }
 
 // ---------------------------------------------------------------------------
@@ -396,7 +414,7 @@ Odometry::numKeyFrames() const
 std::size_t
 Odometry::localMapSize() const
 {
-  return impl_->map.size();
+  return impl_->localMap().size();
 }
 
 pcl::PointCloud<pcl::PointXYZI>::Ptr
@@ -434,7 +452,7 @@ Odometry::Impl::secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
         2.0 * std::max(change.translation().norm(), params.dense.min_kernel_scale_m);
     const DenseResult dense = registerToMap(
         odometry_detail::toPoints(*deskewIndices(input, times, source_indices, xi)),
-        map,
+        localMap(),
         result.T_world_lidar,
         params.dense,
         {start_scale_m, nullptr});
@@ -459,9 +477,9 @@ Odometry::Impl::rebuildMapFromFirstScan(OdometryFrameResult& result)
   if (result.refined && map_scans == 1 && dt_first > 1e-6 && dt_first < 1.0) {
     const pcl::StopWatch watch;
     const Twist xi = logSE3(T_world_first.inverse() * result.T_world_lidar) / dt_first;
-    map = VoxelPlaneMap(params.dense);
+    localMap() = VoxelPlaneMap(params.dense);
     map_scans = 0;
-    insertIntoMap(*deskewCloud(*first_scan, first_times, xi, params.deskew.bins),
+    insertIntoMap(deskewCloud(*first_scan, first_times, xi, params.deskew.bins),
                   T_world_first);
     result.timings.deskew_ms += watch.getTime();
   }

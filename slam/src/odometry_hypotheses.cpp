@@ -196,7 +196,7 @@ Odometry::Impl::refitFromGuidedFeatures(const Frame& frame,
     return {};
   const DenseResult again = registerToMap(
       frame.source,
-      map,
+      localMap(),
       planarFromFeatures(
           T_world_last, T_world_keyframe * fit.T_target_source, dense.T_world_lidar),
       params.dense);
@@ -236,7 +236,7 @@ Odometry::Impl::searchHypotheses(const Frame& frame,
       return onSearchThread(std::move(work));
     };
   const HypothesisSearch search = bestDenseFromHypotheses(
-      frame.source, map, starts, params.dense, params.turn_search, spawn);
+      frame.source, localMap(), starts, params.dense, params.turn_search, spawn);
   DenseResult dense = search.dense;
   result.degraded = true;
   const std::string why = "feature-consistency check failed (" +
@@ -274,8 +274,11 @@ Odometry::Impl::searchHypotheses(const Frame& frame,
   std::optional<DenseResult> from_prior;
   auto fromPrior = [&]() -> const DenseResult& {
     if (!from_prior)
-      from_prior = registerToMap(
-          frame.source, map, frame.T_world_prior, params.dense, priorAnchored(frame));
+      from_prior = registerToMap(frame.source,
+                                 localMap(),
+                                 frame.T_world_prior,
+                                 params.dense,
+                                 priorAnchored(frame));
     return *from_prior;
   };
   // With a tracked velocity at a rate where a vehicle cannot deviate far from it, a

@@ -20,6 +20,7 @@
 #include <pcl/slam/odometry.h>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 namespace pcl {
@@ -155,7 +156,7 @@ Pose3d planarFromFeatures(const Pose3d& T_world_last,
 struct Odometry::Impl
 {
   explicit Impl(const OdometryParams& p)
-      : params(p), front_end(p), front_end_ahead(p), map(p.dense)
+      : params(p), front_end(p), front_end_ahead(p), local_map(p.dense)
   {}
 
   /// The stateless extractors of steps 1-3: one for the frames prepared in order, one
@@ -173,8 +174,29 @@ struct Odometry::Impl
 
   const OdometryParams params;
   FrontEnd front_end, front_end_ahead;
-  VoxelPlaneMap map;
+  /// The local map: read through localMap(), which waits for an insertion running.
+  VoxelPlaneMap local_map;
   int map_scans = 0; ///< scans inserted into the map so far
+  /// A scan's insertion into local_map running on map_thread (insertIntoMap).
+  mutable std::future<void> map_insertion;
+  /// The local map once the insertion running (if any) has finished.
+  VoxelPlaneMap& localMap()
+  {
+    finishMapInsertion();
+    return local_map;
+  }
+  const VoxelPlaneMap& localMap() const
+  {
+    finishMapInsertion();
+    return local_map;
+  }
+  /// Waits for the insertion running, if any; its exception, if it threw, is thrown
+  /// here.
+  void finishMapInsertion() const
+  {
+    if (map_insertion.valid())
+      std::exchange(map_insertion, {}).get();
+  }
   /// The scan that started the map, while it could not be motion-compensated yet (no
   /// motion before it): kept with its times until the next frame's motion is known.
   pcl::PointCloud<pcl::PointXYZI>::ConstPtr first_scan;
@@ -442,9 +464,21 @@ struct Odometry::Impl
              std::string& source) const;
   KeyFrame::Ptr makeKeyFrame(const OdometryFrameResult& result,
                              const RasterFeatureSet& features,
-                             const pcl::PointCloud<pcl::PointXYZI>& cloud);
-  void insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                             const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud);
+  /// \a cloud into the local map at \a T_world_lidar, on map_thread: the next frame's
+  /// front end runs meanwhile and waits for it where it reads the map (localMap()).
+  void insertIntoMap(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
                      const Pose3d& T_world_lidar);
+  /// insertIntoMap's work, on the calling thread.
+  void insertNow(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                 const Pose3d& T_world_lidar);
+  /// The whole compensated scan as keptCloud() makes it, shared.
+  const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
+  keptCloudPtr(Frame& frame, OdometryFrameResult& result) const
+  {
+    keptCloud(frame, result);
+    return frame.kept_cloud;
+  }
 
   /// The look-ahead's scan being prepared on its thread (front_end_ahead).
   struct Ahead
@@ -464,6 +498,8 @@ struct Odometry::Impl
   std::future<void> onSearchThread(std::function<void()> work) const;
   /// The dense search's thread (MotionHypothesisParams::threads).
   mutable std::unique_ptr<slam_detail::TaskThread<void>> search_thread;
+  /// The local map's insertions (insertIntoMap), started by the first and kept.
+  std::unique_ptr<slam_detail::TaskThread<void>> map_thread;
   /// The look-ahead's thread, started by the first look-ahead and kept: a thread
   /// started per scan began about 1.4 ms late (measured in bench_front_end), on the
   /// core of the thread that started it. Last member: destroyed first, its thread

@@ -64,7 +64,7 @@ Odometry::Impl::track(Frame& frame, OdometryFrameResult result)
     result.status = TrackingStatus::kFirstFrame;
     result.message = "first frame: key-frame 0";
     watch.reset();
-    result.keyframe = makeKeyFrame(result, *frame.features, frame.input);
+    result.keyframe = makeKeyFrame(result, *frame.features, frame.input_ptr);
     keyframe_image = std::move(frame.image);
     result.reference_keyframe = result.keyframe->id;
     result.timings.keyframe_ms = watch.getTime();
@@ -78,10 +78,10 @@ Odometry::Impl::track(Frame& frame, OdometryFrameResult result)
   frame.check_visibility = useVisibility(frame);
   const pcl::StopWatch hide_watch;
   result.hidden_map_voxels =
-      map.hideSeenThrough(frame.check_visibility ? &frame.image : nullptr,
-                          frame.T_world_prior.cast<float>(),
-                          static_cast<float>(params.visibility_radius_m),
-                          static_cast<float>(params.visibility_margin_m));
+      localMap().hideSeenThrough(frame.check_visibility ? &frame.image : nullptr,
+                                 frame.T_world_prior.cast<float>(),
+                                 static_cast<float>(params.visibility_radius_m),
+                                 static_cast<float>(params.visibility_margin_m));
   result.timings.visibility_ms += hide_watch.getTime();
 
   // 5. Dense refinement against the local map, from the feature estimate; the
@@ -330,8 +330,8 @@ Odometry::Impl::trackDense(const Frame& frame,
   bool strong = inliers >= params.strong_feature_inliers;
   const DenseOptions anchored =
       strong ? DenseOptions{0.0, &track.T_world_features} : priorAnchored(frame);
-  DenseResult dense =
-      registerToMap(frame.source, map, track.T_world_features, params.dense, anchored);
+  DenseResult dense = registerToMap(
+      frame.source, localMap(), track.T_world_features, params.dense, anchored);
   if (strong && velocity_tracked && dense.success && dense.degenerate_directions > 0 &&
       !nearPrior(frame, track.T_world_features)) {
     // Strong features far from a tracked prior, and the scan cannot confirm them along
@@ -340,8 +340,11 @@ Odometry::Impl::trackDense(const Frame& frame,
     // with dozens of inliers). The prior keeps that direction. (Without a tracked
     // velocity the prior is no motion at all, and the features stand.)
     strong = false;
-    dense = registerToMap(
-        frame.source, map, track.T_world_features, params.dense, priorAnchored(frame));
+    dense = registerToMap(frame.source,
+                          localMap(),
+                          track.T_world_features,
+                          params.dense,
+                          priorAnchored(frame));
     result.degraded = true;
     result.message +=
         "; far from the prior along a direction the scan does not constrain";
@@ -358,8 +361,11 @@ Odometry::Impl::trackDense(const Frame& frame,
     // (a real manoeuvre the prior missed leaves the prior's fit clearly worse). Never two
     // frames running: a prior that won once may itself be the stale one (on a highway
     // the next frames' velocity would come from it), so the next features stand.
-    const DenseResult from_prior = registerToMap(
-        frame.source, map, frame.T_world_prior, params.dense, priorAnchored(frame));
+    const DenseResult from_prior = registerToMap(frame.source,
+                                                 localMap(),
+                                                 frame.T_world_prior,
+                                                 params.dense,
+                                                 priorAnchored(frame));
     if (from_prior.success &&
         from_prior.num_correspondences >= kPriorPairsShare * dense.num_correspondences &&
         moved(dense.T_world_lidar, from_prior.T_world_lidar, 0.02, 0.1) &&
@@ -457,7 +463,7 @@ Odometry::Impl::checkWeakFeatures(const Frame& frame,
           ? planarFromFeatures(T_world_last, track.T_world_features, T_world_prior)
           : T_world_prior;
   const DenseResult second =
-      registerToMap(frame.source, map, T_second, params.dense, anchored);
+      registerToMap(frame.source, localMap(), T_second, params.dense, anchored);
   // Far from a tracked prior, weak features are as likely aliased (guard-rail posts
   // every 2.7 m passed at 2.7 m a frame) as right: there the prior's fit wins unless the
   // features' pairs clearly more (kPriorPairsShare).
@@ -487,7 +493,7 @@ Odometry::Impl::checkWeakFeatures(const Frame& frame,
   if (!dense.success || !second_from_features)
     return;
   const DenseResult from_prior =
-      registerToMap(frame.source, map, T_world_prior, params.dense, anchored);
+      registerToMap(frame.source, localMap(), T_world_prior, params.dense, anchored);
   // 2 cm / 0.1 deg: below the range noise a choice changes nothing.
   if (from_prior.success &&
       moved(dense.T_world_lidar, from_prior.T_world_lidar, 0.02, 0.1) &&
@@ -544,7 +550,7 @@ Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
   const bool weak = result.num_inliers < params.keyframe_min_inliers && useful;
   const bool reanchor = frames_without_tracking + 1 >= kReanchorAfterFrames && useful;
   if ((tracked && (paper_rule || far || weak)) || reanchor) {
-    result.keyframe = makeKeyFrame(result, *frame.features, keptCloud(frame, result));
+    result.keyframe = makeKeyFrame(result, *frame.features, keptCloudPtr(frame, result));
     keyframe_image = std::move(frame.image);
     result.reference_keyframe = result.keyframe->id;
     result.T_keyframe_lidar = Pose3d::Identity();
@@ -555,7 +561,7 @@ Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
   }
   if (!result.keyframe && tracked && result.refined &&
       map_scans < params.dense.young_map_scans)
-    insertIntoMap(keptCloud(frame, result), result.T_world_lidar);
+    insertIntoMap(keptCloudPtr(frame, result), result.T_world_lidar);
   result.timings.keyframe_ms = watch.getTime();
   if (tracked && !result.keyframe) {
     last_features = frame.features;
