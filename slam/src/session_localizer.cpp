@@ -18,6 +18,7 @@
 #include <pcl/slam/loop_detector.h>
 #include <pcl/slam/session_localizer.h>
 #include <stdexcept>
+#include <system_error>
 
 namespace pcl {
 namespace rast {
@@ -551,8 +552,12 @@ struct MapLocalization::Impl
         sweepTimes(next.cloud,
                    next.point_times_s,
                    next_dt > 0.0 && std::isfinite(next_dt) ? next_dt : 0.0);
-    if (!source_thread)
-      source_thread = std::make_unique<slam_detail::TaskThread<Source>>();
+    try {
+      if (!source_thread)
+        source_thread = std::make_unique<slam_detail::TaskThread<Source>>();
+    } catch (const std::system_error&) {
+      return; // no thread to be had: the next frame prepares its own
+    }
     AheadSource a;
     a.cloud = next.cloud.get();
     a.frame_index = next.frame_index;
