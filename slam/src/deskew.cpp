@@ -13,6 +13,18 @@ namespace pcl {
 namespace rast {
 namespace {
 
+/// Eq. (1)'s transform of each of the \a n bins of [lo, lo + span] at the bin's middle
+/// time (deskewCloudInPlace(), deskewPointsAndNormals()).
+std::vector<Pose3d, Eigen::aligned_allocator<Pose3d>>
+binTransforms(double lo, double span, int n, const Twist& xi_per_s)
+{
+  std::vector<Pose3d, Eigen::aligned_allocator<Pose3d>> transforms;
+  transforms.reserve(static_cast<std::size_t>(n));
+  for (int b = 0; b < n; ++b)
+    transforms.push_back(expSE3((lo + (b + 0.5) * span / n) * xi_per_s));
+  return transforms;
+}
+
 constexpr double kPi = 3.14159265358979323846;
 
 Eigen::Matrix3d
@@ -198,12 +210,10 @@ deskewCloudInPlace(pcl::PointCloud<pcl::PointXYZI>& cloud,
   const double lo = lo_f, span = static_cast<double>(hi_f) - lo;
   const int n = span > 0.0 ? bins : 1;
   // One transform per bin, at the bin's middle time.
-  std::vector<Eigen::Matrix<float, 3, 4>> transforms(static_cast<std::size_t>(n));
-  for (int b = 0; b < n; ++b) {
-    const double tau = lo + (b + 0.5) * span / n;
-    transforms[static_cast<std::size_t>(b)] =
-        expSE3(tau * xi_per_s).matrix().topRows<3>().cast<float>();
-  }
+  std::vector<Eigen::Matrix<float, 3, 4>> transforms;
+  transforms.reserve(static_cast<std::size_t>(n));
+  for (const Pose3d& T : binTransforms(lo, span, n, xi_per_s))
+    transforms.push_back(T.matrix().topRows<3>().cast<float>());
   const auto lo_t = static_cast<float>(lo);
   const auto to_bin = static_cast<float>(span > 0.0 ? n / span : 0.0);
   for (std::size_t i = 0; i < cloud.size(); ++i) {
@@ -261,10 +271,7 @@ deskewPointsAndNormals(
   // One transform per bin at its middle time, as deskewCloudInPlace() bins them.
   const double span = hi - lo;
   const int n = span > 0.0 ? bins : 1;
-  std::vector<Pose3d, Eigen::aligned_allocator<Pose3d>> transforms;
-  transforms.reserve(static_cast<std::size_t>(n));
-  for (int b = 0; b < n; ++b)
-    transforms.push_back(expSE3((lo + (b + 0.5) * span / n) * xi_per_s));
+  const auto transforms = binTransforms(lo, span, n, xi_per_s);
   const double to_bin = span > 0.0 ? n / span : 0.0;
   for (std::size_t i = 0; i < points.size(); ++i) {
     const float t = times_s[i];
