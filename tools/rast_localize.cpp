@@ -143,6 +143,13 @@ run(int argc, char** argv)
                   " failed placements in a row (off the map), try one every N frames "
                   "(1: every frame)",
               &params.placement_every);
+  args.addDouble(
+      "prior-radius",
+      "placements verify the key-frames within this distance of the dead-reckoned "
+      "pose first, plus " +
+          std::to_string(static_cast<int>(100.0 * params.prior_radius_per_m + 0.5)) +
+          " % of the distance since the map last confirmed a pose [m] (0: no prior)",
+      &params.prior_radius_m);
   args.addInt("place-lag",
               "those attempts run in the background and are taken N frames later, moved "
               "there by the odometry (0: at once, on the main thread)",
@@ -160,6 +167,18 @@ run(int argc, char** argv)
               "placement: RANSAC inliers of the first (ratio-test) matches", &place_min_initial);
   args.addInt("place-min-inliers", "placement: RANSAC inliers after guided matching",
               &place_min_inliers);
+  const rast::SessionLocalizerParams localizer_defaults;
+  int prior_candidates = localizer_defaults.max_prior_candidates;
+
+  args.addInt(
+      "prior-candidates",
+      "placement: key-frames nearest the dead-reckoned pose verified first (0: none)",
+      &prior_candidates);
+  args.addDouble(
+      "prior-overlap",
+      "placement once lost: the dense check's least overlap for those key-frames "
+      "(negative: the full one)",
+      &params.lost_prior_min_dense_overlap);
   bool no_tentative_alignment = false;
   args.addSwitch("no-tentative-alignment",
                  "a tentative placement is taken only when a second placement agrees, not "
@@ -233,6 +252,7 @@ run(int argc, char** argv)
   localizer_params.verification.min_appearance_score = place_min_score;
   localizer_params.verification.min_initial_inliers = place_min_initial;
   localizer_params.verification.min_inliers = place_min_inliers;
+  localizer_params.max_prior_candidates = prior_candidates;
   std::string deskew_reason, deskew_timing;
   applyDeskewFlags(deskew, reader, static_cast<std::size_t>(stride),
                    localizer_params.odometry.deskew, deskew_reason, deskew_timing);
@@ -408,6 +428,7 @@ run(int argc, char** argv)
       {"track_on_map", params.track_on_map},
       {"backoff_after", params.placement_backoff_after},
       {"every", params.placement_every},
+      {"prior_radius_m", params.prior_radius_m},
       {"background_lag", params.background_placement_lag},
       {"tentative_by_alignment", params.confirm_tentative_by_alignment},
       {"tried", placements_tried}};

@@ -485,7 +485,12 @@ LoopDetector::verifyPair(const KeyFrame& query,
   if (why.empty())
     why = checkSelfSimilarity(params_, query, candidate, tolerance, v);
   if (why.empty() && params_.dense_check)
-    why = denseCheck(query, candidate, retrieved, v);
+    why = denseCheck(query,
+                     candidate,
+                     retrieved,
+                     tolerance.min_dense_overlap >= 0.0 ? tolerance.min_dense_overlap
+                                                        : params_.min_dense_overlap,
+                     v);
   if (!why.empty())
     return reject(why);
 
@@ -504,6 +509,7 @@ std::string
 LoopDetector::denseCheck(const KeyFrame& query,
                          const KeyFrame& candidate,
                          const RetrievedKeyFrame* retrieved,
+                         double min_overlap,
                          LoopVerification& v) const
 {
   // 9. Dense check: point-to-plane refinement of the query's planar points on the
@@ -559,10 +565,10 @@ LoopDetector::denseCheck(const KeyFrame& query,
   }
   v.dense_overlap = structure > 0 ? static_cast<double>(paired) / structure : 0.0;
   v.dense_rmse_m = paired > 0 ? std::sqrt(sum_sq / paired) : 0.0;
-  if (structure == 0 || v.dense_overlap < params_.min_dense_overlap)
+  if (structure == 0 || v.dense_overlap < min_overlap)
     return format("dense overlap %.2f < %.2f (%.0f structure points)",
                   v.dense_overlap,
-                  params_.min_dense_overlap,
+                  min_overlap,
                   structure);
   if (v.dense_rmse_m > params_.max_dense_rmse_m)
     return format("dense rmse %.3f m > %.3f m", v.dense_rmse_m, params_.max_dense_rmse_m);

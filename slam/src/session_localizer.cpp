@@ -41,6 +41,10 @@ SessionLocalizerParams::isValid(std::string* why) const
   if (tentative_min_inliers != 0 && tentative_min_inliers < 3)
     return fail("tentative_min_inliers must be 0 or >= 3, got " +
                 std::to_string(tentative_min_inliers));
+  if (max_prior_candidates < 0)
+    return fail("max_prior_candidates must be >= 0, got " +
+                std::to_string(max_prior_candidates));
+
   return true;
 }
 
@@ -53,6 +57,14 @@ struct SessionLocalizer::Impl
   int min_inliers = 0; ///< the full threshold
   std::unique_ptr<LoopDetector> detector;
   std::size_t indexed = 0;
+  std::vector<KeyFrameId> indexed_ids; ///< the key-frames in the detector
+
+  Placement place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+                  const PlacementPrior* prior) const;
+  Placement place(const KeyFrame& query, const PlacementPrior* prior) const;
+  /// The indexed key-frames within the prior's radius, nearest first, at most
+  /// max_prior_candidates.
+  std::vector<KeyFrameId> nearPrior(const PlacementPrior& prior) const;
 };
 
 namespace {
@@ -101,6 +113,7 @@ SessionLocalizer::SessionLocalizer(Session session, const SessionLocalizerParams
     if (read_cloud)
       kf->cloud.reset();
     ++impl_->indexed;
+    impl_->indexed_ids.push_back(kf->id);
   }
 }
 
@@ -118,8 +131,78 @@ SessionLocalizer::numIndexed() const
   return impl_->indexed;
 }
 
+namespace {
+
+void
+checkPrior(const PlacementPrior& prior)
+{
+  if (!(prior.radius_m > 0.0) || !(prior.rotation_deg > 0.0))
+    throw std::invalid_argument("SessionLocalizer::place: the prior's radius_m and "
+                                "rotation_deg must be > 0, got " +
+                                std::to_string(prior.radius_m) + " and " +
+                                std::to_string(prior.rotation_deg));
+  if (!prior.T_world_lidar.matrix().allFinite())
+    throw std::invalid_argument(
+        "SessionLocalizer::place: the prior's pose is not finite");
+  if (!(prior.min_dense_overlap <= 1.0))
+    throw std::invalid_argument(
+        "SessionLocalizer::place: the prior's min_dense_overlap must be at most 1, got " +
+        std::to_string(prior.min_dense_overlap));
+}
+
+} // namespace
+
 Placement
 SessionLocalizer::place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan) const
+{
+  return impl_->place(scan, nullptr);
+}
+
+Placement
+SessionLocalizer::place(const KeyFrame& query) const
+{
+  return impl_->place(query, nullptr);
+}
+
+Placement
+SessionLocalizer::place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+                        const PlacementPrior& prior) const
+{
+  checkPrior(prior);
+  return impl_->place(scan, &prior);
+}
+
+Placement
+SessionLocalizer::place(const KeyFrame& query, const PlacementPrior& prior) const
+{
+  checkPrior(prior);
+  return impl_->place(query, &prior);
+}
+
+std::vector<KeyFrameId>
+SessionLocalizer::Impl::nearPrior(const PlacementPrior& prior) const
+{
+  std::vector<std::pair<double, KeyFrameId>> near;
+  for (const KeyFrameId id : indexed_ids) {
+    const double d = (session.keyframes[id]->T_world_keyframe.translation() -
+                      prior.T_world_lidar.translation())
+                         .norm();
+    if (d <= prior.radius_m)
+      near.emplace_back(d, id);
+  }
+  const std::size_t n =
+      std::min(near.size(), static_cast<std::size_t>(params.max_prior_candidates));
+  std::partial_sort(
+      near.begin(), near.begin() + static_cast<std::ptrdiff_t>(n), near.end());
+  std::vector<KeyFrameId> out;
+  for (std::size_t i = 0; i < n; ++i)
+    out.push_back(near[i].second);
+  return out;
+}
+
+Placement
+SessionLocalizer::Impl::place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+                              const PlacementPrior* prior) const
 {
   const pcl::StopWatch watch;
   if (!scan || scan->empty()) {
@@ -128,7 +211,7 @@ SessionLocalizer::place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan) c
     return p;
   }
   // A fresh front end makes its first usable scan key-frame 0: features and cloud.
-  Odometry odometry(impl_->params.odometry);
+  Odometry odometry(params.odometry);
   const OdometryFrameResult first = odometry.processFrame(scan, 0.0, 0);
   if (!first.keyframe) {
     Placement p;
@@ -136,13 +219,13 @@ SessionLocalizer::place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan) c
     p.time_ms = watch.getTime();
     return p;
   }
-  Placement p = place(*first.keyframe);
+  Placement p = place(*first.keyframe, prior);
   p.time_ms = watch.getTime();
   return p;
 }
 
 Placement
-SessionLocalizer::place(const KeyFrame& query_in) const
+SessionLocalizer::Impl::place(const KeyFrame& query_in, const PlacementPrior* prior) const
 {
   const pcl::StopWatch watch;
   Placement p;
@@ -153,78 +236,123 @@ SessionLocalizer::place(const KeyFrame& query_in) const
   }
   // The query's id only has to differ from the map's.
   KeyFrame query = query_in;
-  query.id = static_cast<KeyFrameId>(impl_->session.keyframes.size());
-  const LoopDetector& detector = *impl_->detector;
+  query.id = static_cast<KeyFrameId>(session.keyframes.size());
+  const LoopDetector& index = *detector;
   const std::vector<std::pair<KeyFrameId, int>> ranking =
-      detector.rankByAppearance(query, Pose3d::Identity());
+      index.rankByAppearance(query, Pose3d::Identity());
   p.candidates_retrieved = static_cast<int>(ranking.size());
-  const GuessTolerance no_guess; // any pose: there is no prior
   std::string reasons;
-  const auto fill = [&](KeyFrameId id, const LoopVerification& v, int candidate_number,
-                        const char* what) {
-    const KeyFrame& candidate = *impl_->session.keyframes.at(id);
+  const auto note = [&](KeyFrameId id, const std::string& why) {
+    if (reasons.size() < 400)
+      reasons += (reasons.empty() ? "" : "; ") + std::to_string(id) + ": " + why;
+  };
+  const auto fill = [&](KeyFrameId id,
+                        const LoopVerification& v,
+                        const std::string& what) {
+    const KeyFrame& candidate = *session.keyframes.at(id);
     p.keyframe = id;
     p.T_world_lidar = normalizedPose(candidate.T_world_keyframe * v.T_candidate_query);
     p.num_inliers = v.num_inliers;
     p.dense_overlap = v.dense_overlap;
     p.dense_rmse_m = v.dense_rmse_m;
-    char text[180];
-    std::snprintf(text, sizeof text,
-                  "%s key-frame %u (candidate %d of %d): %d inliers, dense overlap "
-                  "%.2f, rmse %.3f m",
-                  what, static_cast<unsigned>(id), candidate_number, p.candidates_retrieved, v.num_inliers, v.dense_overlap, v.dense_rmse_m);
-    p.message = text;
+    char text[120];
+    std::snprintf(text,
+                  sizeof text,
+                  ": %d inliers, dense overlap %.2f, rmse %.3f m",
+                  v.num_inliers,
+                  v.dense_overlap,
+                  v.dense_rmse_m);
+    p.message = what + text;
   };
   struct Tentative
   {
     KeyFrameId id;
     LoopVerification verification;
-    int candidate_number;
+    std::string what;
   };
   std::optional<Tentative> tentative;
-  for (const auto& [id, score] : ranking) {
-    if (p.candidates_verified >= impl_->params.max_candidates)
-      break;
-    if (score < impl_->params.verification.min_appearance_score)
-      continue; // ranked by score per feature: a later one can still have enough
-    ++p.candidates_verified;
-    const KeyFrame& candidate = *impl_->session.keyframes.at(id);
-    const LoopVerification v = detector.verify(query, candidate, Pose3d::Identity(), no_guess);
+  // One candidate verified: true when it places the scan (a weaker one is kept as the
+  // tentative placement, a later candidate may still reach the full threshold).
+  const auto verify = [&](KeyFrameId id,
+                          const Pose3d& guess,
+                          const GuessTolerance& tolerance,
+                          const std::string& what) {
+    const LoopVerification v =
+        index.verify(query, *session.keyframes.at(id), guess, tolerance);
     if (!v.accepted) {
-      if (reasons.size() < 400)
-        reasons += (reasons.empty() ? "" : "; ") + std::to_string(id) + ": " + v.reason;
-      continue;
+      note(id, v.reason);
+      return false;
     }
-    if (v.num_inliers < impl_->min_inliers) {
-      // Short of the full threshold: a later candidate may still reach it.
+    if (v.num_inliers < min_inliers) {
       if (!tentative)
-        tentative = Tentative{id, v, p.candidates_verified};
-      if (reasons.size() < 400)
-        reasons += (reasons.empty() ? "" : "; ") + std::to_string(id) + ": tentative, " +
-                   std::to_string(v.num_inliers) + " inliers < " +
-                   std::to_string(impl_->min_inliers);
-      continue;
+        tentative = Tentative{id, v, "tentatively on " + what};
+      note(id,
+           "tentative, " + std::to_string(v.num_inliers) + " inliers < " +
+               std::to_string(min_inliers));
+      return false;
     }
     p.success = true;
-    fill(id, v, p.candidates_verified, "placed on");
-    p.time_ms = watch.getTime();
-    return p;
+    fill(id, v, "placed on " + what);
+    return true;
+  };
+  // The key-frames nearest the prior first, under the prior as the guess.
+  std::vector<KeyFrameId> near;
+  if (prior)
+    near = nearPrior(*prior);
+  for (const KeyFrameId id : near) {
+    ++p.candidates_verified;
+    const Pose3d& T_world_kf = session.keyframes[id]->T_world_keyframe;
+    char what[96];
+    std::snprintf(what,
+                  sizeof what,
+                  "key-frame %u (%.1f m from the prior)",
+                  static_cast<unsigned>(id),
+                  (T_world_kf.translation() - prior->T_world_lidar.translation()).norm());
+    if (verify(id,
+               T_world_kf.inverse() * prior->T_world_lidar,
+               GuessTolerance{
+                   prior->radius_m, prior->rotation_deg, prior->min_dense_overlap},
+               what)) {
+      p.time_ms = watch.getTime();
+      return p;
+    }
+  }
+  // Then by appearance, with no guess, up to max_candidates verified in all.
+  int verified_by_appearance = 0;
+  for (const auto& [id, score] : ranking) {
+    if (p.candidates_verified >= params.max_candidates)
+      break;
+    if (score < params.verification.min_appearance_score)
+      continue; // ranked by score per feature: a later one can still have enough
+    if (std::find(near.begin(), near.end(), id) != near.end())
+      continue; // verified under the prior already
+    ++verified_by_appearance;
+    ++p.candidates_verified;
+    const std::string what = "key-frame " + std::to_string(id) + " (candidate " +
+                             std::to_string(verified_by_appearance) + " of " +
+                             std::to_string(p.candidates_retrieved) + ")";
+    if (verify(id, Pose3d::Identity(), GuessTolerance{}, what)) {
+      p.time_ms = watch.getTime();
+      return p;
+    }
   }
   if (tentative) {
     p.tentative = true;
-    fill(tentative->id, tentative->verification, tentative->candidate_number, "tentatively on");
+    fill(tentative->id, tentative->verification, tentative->what);
     p.time_ms = watch.getTime();
     return p;
   }
-  if (ranking.empty())
+  if (ranking.empty() && near.empty())
     p.message = "no key-frame of the map shares its appearance";
   else if (p.candidates_verified == 0)
     p.message = "no key-frame's appearance score reaches " +
-                std::to_string(impl_->params.verification.min_appearance_score) + " (best " +
-                std::to_string(std::max_element(ranking.begin(), ranking.end(),
+                std::to_string(params.verification.min_appearance_score) + " (best " +
+                std::to_string(std::max_element(ranking.begin(),
+                                                ranking.end(),
                                                 [](const auto& a, const auto& b) {
                                                   return a.second < b.second;
-                                                })->second) +
+                                                })
+                                   ->second) +
                 ")";
   else
     p.message = "no candidate verified (" + reasons + ")";
@@ -259,6 +387,17 @@ MapLocalizationParams::isValid(std::string* why) const
   std::string sub;
   if (!(map_radius_m > 0.0))
     return fail("map_radius_m must be > 0, got " + std::to_string(map_radius_m));
+  if (!(prior_radius_m >= 0.0) || !(prior_radius_per_m >= 0.0) ||
+      !(prior_max_radius_m >= prior_radius_m))
+    return fail(
+        "prior_radius_m and prior_radius_per_m must be >= 0 and prior_max_radius_m "
+        ">= prior_radius_m, got " +
+        std::to_string(prior_radius_m) + ", " + std::to_string(prior_radius_per_m) +
+        " and " + std::to_string(prior_max_radius_m));
+  if (!(lost_prior_min_dense_overlap <= 1.0))
+    return fail("lost_prior_min_dense_overlap must be at most 1, got " +
+                std::to_string(lost_prior_min_dense_overlap));
+
   if (!(reuse_target_m >= 0.0))
     return fail("reuse_target_m must be >= 0, got " + std::to_string(reuse_target_m));
   if (map_keyframes < 1)
@@ -379,6 +518,25 @@ struct MapLocalization::Impl
   std::deque<double> recent_rmse; ///< of the last confirmed alignments, since a placement
   int failed_placements = 0;         ///< placement attempts in a row that placed nothing
   std::size_t last_attempt_frame = 0; ///< the frame (count) of the last attempt
+  double travelled_m = 0.0; ///< by the predictions since the map last confirmed a pose
+
+  /// Where this frame's prediction may be on the map (MapLocalizationParams::
+  /// prior_radius_m); none without a prediction or once it is too uncertain.
+  std::optional<PlacementPrior>
+  placementPrior(const std::optional<Pose3d>& predicted) const
+  {
+    if (!predicted || params.prior_radius_m <= 0.0)
+      return std::nullopt;
+    const double radius = params.prior_radius_m + params.prior_radius_per_m * travelled_m;
+    if (radius > params.prior_max_radius_m)
+      return std::nullopt;
+    PlacementPrior prior;
+    prior.T_world_lidar = *predicted;
+    prior.radius_m = radius;
+    if (tracking_only >= params.max_tracking_only_frames) // lost: entering the map, maybe
+      prior.min_dense_overlap = params.lost_prior_min_dense_overlap;
+    return prior;
+  }
 
   /// Whether the last placement (tentative or full) is at most tentative_window_frames
   /// before this frame: a later scan may still agree with it.
@@ -730,6 +888,7 @@ struct MapLocalization::Impl
       map_velocity.reset();
     previous_confirmed = true;
     tracking_only = 0;
+    travelled_m = 0.0;
     T_world_previous = T_world_lidar;
     pending.reset(); // an attempt in the background has nothing to add (waits for it)
   }
@@ -951,6 +1110,7 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
   std::optional<Pose3d> predicted;
   if (m.T_world_previous)
     predicted = normalizedPose(*m.T_world_previous * step);
+  m.travelled_m += step.translation().norm();
 
   std::string why;
   if (predicted && m.tracking_only >= m.params.max_realign_frames) {
@@ -1041,6 +1201,7 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
   }
   Placement placement;
   bool started_in_background = false;
+  const std::optional<PlacementPrior> prior = m.placementPrior(predicted);
   if (!odo->features || odo->features->empty() || !has_points) {
     placement.message = "no features: " + odo->message;
   } else if (!m.placementDue()) {
@@ -1058,28 +1219,33 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
       query.features = *odo->features;
     query.cloud = scan();
     const SessionLocalizer& localizer = m.localizer;
-    m.pending =
-        Impl::Pending{std::async(std::launch::async,
-                                 [&localizer, own_features, query = std::move(query)] {
-                                   return own_features ? localizer.place(query.cloud)
-                                                       : localizer.place(query);
-                                 }),
-                      odo->T_world_lidar,
-                      m.frames};
+    m.pending = Impl::Pending{
+        std::async(std::launch::async,
+                   [&localizer, own_features, prior, query = std::move(query)] {
+                     if (own_features)
+                       return prior ? localizer.place(query.cloud, *prior)
+                                    : localizer.place(query.cloud);
+                     return prior ? localizer.place(query, *prior)
+                                  : localizer.place(query);
+                   }),
+        odo->T_world_lidar,
+        m.frames};
     m.last_attempt_frame = m.frames;
     const int lag = m.params.background_placement_lag;
     placement.message = "started in the background, taken " + std::to_string(lag) +
                         (lag == 1 ? " frame" : " frames") + " later";
+    if (!collected.empty()) // the one taken this frame placed nothing
+      placement.message = collected + "; another " + placement.message;
     started_in_background = true;
   } else {
     f.placement_tried = true;
     if (scan() != raw_scan && !odo->deskew_applied) {
-      placement = m.localizer.place(scan());
+      placement = prior ? m.localizer.place(scan(), *prior) : m.localizer.place(scan());
     } else {
       KeyFrame query;
       query.features = *odo->features;
       query.cloud = scan();
-      placement = m.localizer.place(query);
+      placement = prior ? m.localizer.place(query, *prior) : m.localizer.place(query);
     }
     m.last_attempt_frame = m.frames;
   }
@@ -1127,6 +1293,7 @@ MapLocalization::addSkippedScan(double timestamp_s,
     f.odometry_ran = true;
   }
   m.last_timestamp_s = timestamp_s;
+  m.travelled_m += step.translation().norm();
   if (m.T_world_previous)
     m.carryOn(f, normalizedPose(*m.T_world_previous * step), "skipped: " + reason);
   else

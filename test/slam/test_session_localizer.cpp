@@ -524,6 +524,124 @@ TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
   }
 }
 
+/// A prior pose (MapLocalization's dead reckoning) makes the key-frames near it
+/// candidates whatever their appearance: with retrieval switched off (an appearance
+/// score no key-frame reaches), second-pass scans are placed from a prior 3 m and 5 deg
+/// off, and not from one 60 m off along the loop, where every nearby key-frame is of
+/// another place.
+TEST(SessionLocalizer, APriorPlacesScansThatAppearanceDoesNotRetrieve)
+{
+  const MappedLoop m = mapLoop();
+  SessionLocalizerParams params;
+  applySensorPreset(SensorPreset::kHdl64, params.odometry);
+  params.verification.min_appearance_score = 1000000;
+  SessionLocalizer localizer(loadSession(m.dir.string()), params);
+  params.max_prior_candidates = 0;
+  SessionLocalizer no_prior(loadSession(m.dir.string()), params);
+
+  const Pose3d nudge =
+      Pose3d(Eigen::Translation3d(2.0, -2.0, 0.5) *
+             Eigen::AngleAxisd(5.0 * M_PI / 180.0, Eigen::Vector3d::UnitZ()));
+  int placed = 0, tentative = 0, tried = 0;
+  double max_error_m = 0.0;
+  for (std::size_t i = 160; i < 200; i += 4) {
+    const CloudPtr scan = simulateFrame(*m.sim, i);
+    const Placement alone = localizer.place(scan);
+    EXPECT_FALSE(alone.success || alone.tentative)
+        << "frame " << i << ": " << alone.message;
+    PlacementPrior prior;
+    prior.T_world_lidar = m.truth(i) * nudge;
+    prior.radius_m = 10.0;
+    EXPECT_FALSE(no_prior.place(scan, prior).success) << "max_prior_candidates 0";
+    const Placement p = localizer.place(scan, prior);
+    ++tried;
+    if (p.success || p.tentative) {
+      const double error_m =
+          (p.T_world_lidar.translation() - m.truth(i).translation()).norm();
+      max_error_m = std::max(max_error_m, error_m);
+      EXPECT_LT(error_m, 0.5) << "frame " << i << ": " << p.message;
+      EXPECT_LT(rotationErrorDeg(p.T_world_lidar, m.truth(i)), 1.0) << "frame " << i;
+      EXPECT_NE(p.message.find("from the prior"), std::string::npos) << p.message;
+      placed += p.success ? 1 : 0;
+      tentative += p.tentative ? 1 : 0;
+    }
+    // 60 frames (60 m) back along the loop: nothing there verifies within 10 m of it.
+    PlacementPrior wrong = prior;
+    wrong.T_world_lidar = m.truth(i - 60) * nudge;
+    const Placement w = localizer.place(scan, wrong);
+    EXPECT_FALSE(w.success || w.tentative)
+        << "frame " << i << " from a prior 60 m off: " << w.message;
+    // The prior's overlap threshold reaches the dense check.
+    if (p.success) {
+      PlacementPrior strict = prior;
+      strict.min_dense_overlap = 1.0;
+      const Placement s = localizer.place(scan, strict);
+      EXPECT_FALSE(s.success) << s.message;
+      EXPECT_NE(s.message.find("< 1.00"), std::string::npos) << s.message;
+    }
+  }
+  std::printf(
+      "simulated second pass with retrieval off: %d of %d scans placed from a prior "
+      "3 m and 5 deg off (%d more tentatively), largest error %.3f m\n",
+      placed,
+      tried,
+      tentative,
+      max_error_m);
+  EXPECT_GE(placed, tried - 2);
+
+  PlacementPrior bad;
+  bad.radius_m = 0.0;
+  EXPECT_THROW(localizer.place(simulateFrame(*m.sim, 160), bad), std::invalid_argument);
+  bad.radius_m = 5.0;
+  bad.T_world_lidar.translation().x() = std::nan("");
+  EXPECT_THROW(localizer.place(simulateFrame(*m.sim, 160), bad), std::invalid_argument);
+}
+
+/// MapLocalization hands the odometry's dead reckoning to its placements: a second pass
+/// started from a given pose, with the map alignment failing (it asks for more points
+/// than a scan has) and retrieval switched off, only the prior can place the scans; with
+/// prior_radius_m 0 none is.
+TEST(MapLocalization, PlacesFromItsDeadReckoningWhenRetrievalCannot)
+{
+  const MappedLoop m = mapLoop();
+  SessionLocalizerParams params;
+  applySensorPreset(SensorPreset::kHdl64, params.odometry);
+  params.verification.min_appearance_score = 1000000; // retrieval finds nothing
+  const SessionLocalizer localizer(loadSession(m.dir.string()), params);
+  for (const double radius : {10.0, 0.0}) {
+    MapLocalizationParams lp;
+    lp.prior_radius_m = radius;
+    lp.alignment.min_correspondences = 1000000; // never aligned: the odometry carries on
+    MapLocalization localization(localizer, m.odometry, lp);
+    localization.setInitialPose(m.truth(160));
+    int placed = 0;
+    double max_error_m = 0.0;
+    for (std::size_t i = 160; i < 190; ++i) {
+      const LocalizationFrame f =
+          localization.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
+      const double error_m =
+          (f.T_world_lidar.translation() - m.truth(i).translation()).norm();
+      if (f.status == LocalizationStatus::kLocalized) {
+        EXPECT_TRUE(f.placed) << "frame " << i << ": " << f.message;
+        EXPECT_LT(error_m, 0.5) << "frame " << i << ": " << f.message;
+        EXPECT_NE(f.message.find("from the prior"), std::string::npos) << f.message;
+        max_error_m = std::max(max_error_m, error_m);
+        ++placed;
+      }
+    }
+    std::printf(
+        "simulated, no map alignment and no retrieval, prior radius %.0f m: %d of 30 "
+        "frames placed, largest error %.3f m\n",
+        radius,
+        placed,
+        max_error_m);
+    if (radius > 0.0)
+      EXPECT_GE(placed, 20);
+    else
+      EXPECT_EQ(placed, 0) << "no prior and no retrieval: nothing places the scans";
+  }
+}
+
 TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
 {
   SessionLocalizerParams params;
@@ -569,6 +687,14 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
       "got 4 (tentative_window_frames 3)");
   expectInvalid(mapParams([](auto& p) { p.background_placement_lag = -1; }),
                 "background_placement_lag must be >= 0");
+  expectInvalid(
+      mapParams([](auto& p) { p.prior_max_radius_m = 5.0; }),
+      "prior_max_radius_m >= prior_radius_m, got 10.000000, 0.020000 and 5.000000");
+  expectInvalid(mapParams([](auto& p) { p.lost_prior_min_dense_overlap = 1.5; }),
+                "lost_prior_min_dense_overlap must be at most 1, got 1.5");
+  SessionLocalizerParams prior_candidates;
+  prior_candidates.max_prior_candidates = -1;
+  expectInvalid(prior_candidates, "max_prior_candidates must be >= 0, got -1");
   SessionLocalizerParams tentative_two;
   tentative_two.tentative_min_inliers = 2;
   expectInvalid(tentative_two, "tentative_min_inliers must be 0 or >= 3, got 2");

@@ -144,6 +144,7 @@ private:
   std::string denseCheck(const KeyFrame& query,
                          const KeyFrame& candidate,
                          const RetrievedKeyFrame* retrieved,
+                         double min_overlap,
                          LoopVerification& v) const;
   /// The final refinement of an accepted \a v on the candidate's dense \a target.
   void refineAccepted(const KeyFrame& query, const PointToPlaneTarget& target,

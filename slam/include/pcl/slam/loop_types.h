@@ -284,6 +284,11 @@ struct GuessTolerance
 {
   double translation_m = -1.0;
   double rotation_deg = -1.0;
+  /// The dense check's least overlap for a pair verified under this guess (negative:
+  /// LoopDetectorParams::min_dense_overlap). A scan entering the map from a road the
+  /// map lacks sees much structure the key-frame does not: with a guess that already
+  /// bounds the pose, a smaller share of it may be enough.
+  double min_dense_overlap = -1.0;
 };
 
 } // namespace rast
