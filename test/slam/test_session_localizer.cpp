@@ -642,6 +642,41 @@ TEST(MapLocalization, PlacesFromItsDeadReckoningWhenRetrievalCannot)
   }
 }
 
+/// Scans that could not be read (MapLocalization::addSkippedScan) are carried by the
+/// last confirmed motion: on the straight start of the second pass, four skipped frames
+/// stay within centimetres of the truth and the next scan is aligned to the map again.
+/// Before any scan, a skipped one has no pose and says why.
+TEST(MapLocalization, SkippedScansAreCarriedByTheLastMotion)
+{
+  const MappedLoop m = mapLoop();
+  MapLocalization localization(*m.localizer, m.odometry);
+  const LocalizationFrame none =
+      localization.addSkippedScan(m.sim->timestamp(159), 159, "unreadable");
+  EXPECT_EQ(none.status, LocalizationStatus::kLost);
+  EXPECT_EQ(none.message, "skipped: unreadable");
+  double max_skipped_m = 0.0;
+  for (std::size_t i = 160; i < 175; ++i) {
+    const bool skip = i >= 166 && i < 170;
+    const LocalizationFrame f =
+        skip ? localization.addSkippedScan(m.sim->timestamp(i), i, "unreadable")
+             : localization.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
+    const double error_m =
+        (f.T_world_lidar.translation() - m.truth(i).translation()).norm();
+    if (skip) {
+      EXPECT_EQ(f.status, LocalizationStatus::kTrackingOnly) << "frame " << i;
+      EXPECT_EQ(f.message, "skipped: unreadable");
+      max_skipped_m = std::max(max_skipped_m, error_m);
+    } else if (i > 161) {
+      EXPECT_EQ(f.status, LocalizationStatus::kLocalized)
+          << "frame " << i << ": " << f.message;
+      EXPECT_LT(error_m, 0.1) << "frame " << i << ": " << f.message;
+    }
+  }
+  std::printf("simulated, 4 scans skipped on a straight: carried within %.3f m\n",
+              max_skipped_m);
+  EXPECT_LT(max_skipped_m, 0.3);
+}
+
 TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
 {
   SessionLocalizerParams params;
