@@ -44,7 +44,6 @@ SessionLocalizerParams::isValid(std::string* why) const
   if (max_prior_candidates < 0)
     return fail("max_prior_candidates must be >= 0, got " +
                 std::to_string(max_prior_candidates));
-
   return true;
 }
 
@@ -397,7 +396,6 @@ MapLocalizationParams::isValid(std::string* why) const
   if (!(lost_prior_min_dense_overlap <= 1.0))
     return fail("lost_prior_min_dense_overlap must be at most 1, got " +
                 std::to_string(lost_prior_min_dense_overlap));
-
   if (!(reuse_target_m >= 0.0))
     return fail("reuse_target_m must be >= 0, got " + std::to_string(reuse_target_m));
   if (map_keyframes < 1)
@@ -435,6 +433,21 @@ MapLocalizationParams::isValid(std::string* why) const
         std::to_string(tentative_window_frames) + ")");
   return true;
 }
+
+namespace {
+
+/// A placement of \a query (a scan, or a key-frame with its features) with the prior
+/// when there is one.
+template <typename Query>
+Placement
+placeWithPrior(const SessionLocalizer& localizer,
+               const Query& query,
+               const std::optional<PlacementPrior>& prior)
+{
+  return prior ? localizer.place(query, *prior) : localizer.place(query);
+}
+
+} // namespace
 
 struct MapLocalization::Impl
 {
@@ -1222,11 +1235,8 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
     m.pending = Impl::Pending{
         std::async(std::launch::async,
                    [&localizer, own_features, prior, query = std::move(query)] {
-                     if (own_features)
-                       return prior ? localizer.place(query.cloud, *prior)
-                                    : localizer.place(query.cloud);
-                     return prior ? localizer.place(query, *prior)
-                                  : localizer.place(query);
+                     return own_features ? placeWithPrior(localizer, query.cloud, prior)
+                                         : placeWithPrior(localizer, query, prior);
                    }),
         odo->T_world_lidar,
         m.frames};
@@ -1240,12 +1250,12 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
   } else {
     f.placement_tried = true;
     if (scan() != raw_scan && !odo->deskew_applied) {
-      placement = prior ? m.localizer.place(scan(), *prior) : m.localizer.place(scan());
+      placement = placeWithPrior(m.localizer, scan(), prior);
     } else {
       KeyFrame query;
       query.features = *odo->features;
       query.cloud = scan();
-      placement = prior ? m.localizer.place(query, *prior) : m.localizer.place(query);
+      placement = placeWithPrior(m.localizer, query, prior);
     }
     m.last_attempt_frame = m.frames;
   }
