@@ -154,6 +154,21 @@ run(int argc, char** argv)
               "those attempts run in the background and are taken N frames later, moved "
               "there by the odometry (0: at once, on the main thread)",
               &params.background_placement_lag);
+  args.addDouble(
+      "far-radius",
+      "off the map, a dead-reckoned pose farther than this from every session "
+      "key-frame, plus " +
+          std::to_string(static_cast<int>(100.0 * params.far_drift_ratio + 0.5)) +
+          " % of the distance since the map last confirmed a pose, is far from "
+          "it: attempts every -far-every frames, taken -far-lag frames later "
+          "[m] (0: never far)",
+      &params.far_radius_m);
+  args.addInt("far-every",
+              "far from the map, backed off: one attempt every N frames",
+              &params.far_placement_every);
+  args.addInt("far-lag",
+              "far from the map: attempts taken N frames later",
+              &params.far_placement_lag);
   // Placement thresholds (SessionLocalizerParams::verification): fewer accept more
   // placements, between passes that share less, at the risk of a wrong one.
   const rast::LoopDetectorParams loop_defaults;
@@ -430,6 +445,9 @@ run(int argc, char** argv)
       {"every", params.placement_every},
       {"prior_radius_m", params.prior_radius_m},
       {"background_lag", params.background_placement_lag},
+      {"far_radius_m", params.far_radius_m},
+      {"far_every", params.far_placement_every},
+      {"far_lag", params.far_placement_lag},
       {"tentative_by_alignment", params.confirm_tentative_by_alignment},
       {"tried", placements_tried}};
   summary["lookahead"] = {{"on", !no_lookahead},

@@ -11,6 +11,7 @@
 #include <deque>
 #include <functional>
 #include <future>
+#include <limits>
 #include <map>
 #include <optional>
 #include <pcl/common/time.h>
@@ -431,10 +432,30 @@ MapLocalizationParams::isValid(std::string* why) const
         "got " +
         std::to_string(background_placement_lag) + " (tentative_window_frames " +
         std::to_string(tentative_window_frames) + ")");
+  if (!(far_radius_m >= 0.0) || !(far_drift_ratio >= 0.0))
+    return fail("far_radius_m and far_drift_ratio must be >= 0, got " +
+                std::to_string(far_radius_m) + " and " + std::to_string(far_drift_ratio));
+  if (far_placement_every < 1 || far_placement_lag < 0 ||
+      (tentative_window_frames > 0 && far_placement_lag > tentative_window_frames))
+    return fail("far_placement_every must be >= 1 and far_placement_lag >= 0 and at most "
+                "tentative_window_frames, got " +
+                std::to_string(far_placement_every) + " and " +
+                std::to_string(far_placement_lag));
   return true;
 }
 
 namespace {
+
+/// " (far from the map: ...)" for a prediction \a far_m from its nearest key-frame.
+std::string
+farNote(const std::optional<double>& far_m)
+{
+  if (!far_m)
+    return {};
+  char text[64];
+  std::snprintf(text, sizeof text, " (far from the map: %.0f m)", *far_m);
+  return text;
+}
 
 /// A placement of \a query (a scan, or a key-frame with its features) with the prior
 /// when there is one.
@@ -567,7 +588,43 @@ struct MapLocalization::Impl
       return true;
     if (recentWithinWindow())
       return true; // a tentative placement waits for a second one to agree
-    return frames - last_attempt_frame >= static_cast<std::size_t>(params.placement_every);
+    return frames - last_attempt_frame >= static_cast<std::size_t>(placementEvery());
+  }
+
+  /// Distance [m] from \a predicted to the nearest session key-frame of the map when
+  /// that is farther than the dead reckoning can be off (MapLocalizationParams::
+  /// far_radius_m), else none.
+  std::optional<double> farFromMap(const std::optional<Pose3d>& predicted) const
+  {
+    if (!predicted || params.far_radius_m <= 0.0)
+      return std::nullopt;
+    const double radius = params.far_radius_m + params.far_drift_ratio * travelled_m;
+    double nearest = std::numeric_limits<double>::infinity();
+    for (const KeyFrame::Ptr& kf : localizer.session().keyframes) {
+      if (sessionComponentOf(localizer.session(), kf->id) != 0)
+        continue; // a separate map in another frame
+      nearest = std::min(
+          nearest,
+          (kf->T_world_keyframe.translation() - predicted->translation()).norm());
+      if (nearest <= radius)
+        return std::nullopt;
+    }
+    return nearest;
+  }
+  std::optional<double> far_from_map; ///< farFromMap of this frame's prediction
+
+  /// The back-off's attempt interval and background lag of this frame: never more
+  /// often or sooner far from the map than near it.
+  int placementEvery() const
+  {
+    return far_from_map ? std::max(params.far_placement_every, params.placement_every)
+                        : params.placement_every;
+  }
+  int placementLag() const
+  {
+    return far_from_map && params.background_placement_lag > 0
+               ? std::max(params.far_placement_lag, params.background_placement_lag)
+               : params.background_placement_lag;
   }
 
   /// Why an alignment with residual \a rmse_m fits suspiciously worse than the last
@@ -598,6 +655,7 @@ struct MapLocalization::Impl
     std::future<Placement> result;
     Pose3d T_odom_lidar = Pose3d::Identity(); ///< the odometry's pose of its scan
     std::size_t frame = 0; ///< frame count of its scan
+    int lag = 1;           ///< frames after which it is taken
   };
   std::optional<Pending> pending;
   std::optional<AheadSource> ahead_source;
@@ -609,9 +667,8 @@ struct MapLocalization::Impl
   /// no tentative placement waiting for a second one, and room for one at a time.
   bool placeInBackground() const
   {
-    const int lag = params.background_placement_lag;
-    return lag > 0 && params.placement_every > lag &&
-           params.placement_backoff_after > 0 &&
+    const int lag = placementLag();
+    return lag > 0 && placementEvery() > lag && params.placement_backoff_after > 0 &&
            failed_placements >= params.placement_backoff_after && !recentWithinWindow() &&
            !pending;
   }
@@ -1159,12 +1216,12 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
   // the compensated scan.
   if (!odo)
     track();
-  // A placement started in the background background_placement_lag frames ago is
-  // taken now: recorded for its own scan, as an attempt at once would have been, and
-  // moved to this one by the odometry.
+  // A placement started in the background is taken once its lag has passed: recorded
+  // for its own scan, as an attempt at once would have been, and moved to this one by
+  // the odometry.
   std::string collected;
-  if (m.pending && m.frames - m.pending->frame >=
-                       static_cast<std::size_t>(m.params.background_placement_lag)) {
+  if (m.pending &&
+      m.frames - m.pending->frame >= static_cast<std::size_t>(m.pending->lag)) {
     Impl::Pending job = std::move(*m.pending);
     m.pending.reset();
     Placement p = job.result.get();
@@ -1215,6 +1272,10 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
   Placement placement;
   bool started_in_background = false;
   const std::optional<PlacementPrior> prior = m.placementPrior(predicted);
+  m.far_from_map = m.params.placement_backoff_after > 0 &&
+                           m.failed_placements >= m.params.placement_backoff_after
+                       ? m.farFromMap(predicted)
+                       : std::nullopt; // only the back-off's schedule depends on it
   if (!odo->features || odo->features->empty() || !has_points) {
     placement.message = "no features: " + odo->message;
   } else if (!m.placementDue()) {
@@ -1222,7 +1283,8 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
                             ? collected
                             : "not tried: " + std::to_string(m.failed_placements) +
                                   " failed placements in a row, one every " +
-                                  std::to_string(m.params.placement_every) + " frames";
+                                  std::to_string(m.placementEvery()) + " frames" +
+                                  farNote(m.far_from_map);
   } else if (m.placeInBackground()) {
     // The odometry goes on with the next frames meanwhile (the query is a copy).
     f.placement_tried = true;
@@ -1239,11 +1301,13 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
                                          : placeWithPrior(localizer, query, prior);
                    }),
         odo->T_world_lidar,
-        m.frames};
+        m.frames,
+        m.placementLag()};
     m.last_attempt_frame = m.frames;
-    const int lag = m.params.background_placement_lag;
+    const int lag = m.placementLag();
     placement.message = "started in the background, taken " + std::to_string(lag) +
-                        (lag == 1 ? " frame" : " frames") + " later";
+                        (lag == 1 ? " frame" : " frames") + " later" +
+                        farNote(m.far_from_map);
     if (!collected.empty()) // the one taken this frame placed nothing
       placement.message = collected + "; another " + placement.message;
     started_in_background = true;

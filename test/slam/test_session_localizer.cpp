@@ -524,6 +524,62 @@ TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
   }
 }
 
+/// Once placed, a run whose dead reckoning lies far from every key-frame of the map
+/// backs off further: an attempt every far_placement_every frames, taken
+/// far_placement_lag frames later. Here a world that was never mapped is driven from
+/// a given pose 1 km from the map, or from the map's own first pose (near it); with
+/// far_radius_m 0 the far schedule is off.
+TEST(MapLocalization, AttemptsFarFromTheMapAreFewerAndLater)
+{
+  const MappedLoop m = mapLoop(true, 40);
+  const auto elsewhere = pathSimulator(PathType::kStraight, 24, 0.0, 9);
+  const Pose3d far_away(Eigen::Translation3d(1000.0, 0.0, 0.0));
+  for (const auto& [start, far_radius_m, far_expected] :
+       {std::tuple{far_away, 30.0, true},
+        std::tuple{m.truth(0), 30.0, false},
+        std::tuple{far_away, 0.0, false}}) {
+    MapLocalizationParams params;
+    params.placement_backoff_after = 6;
+    params.placement_every = 2;
+    params.background_placement_lag = 1;
+    params.far_radius_m = far_radius_m;
+    params.far_placement_every = 5;
+    params.far_placement_lag = 3;
+    MapLocalization localization(*m.localizer, m.odometry, params);
+    localization.setInitialPose(start);
+    std::vector<std::size_t> started;
+    int far_notes = 0;
+    for (std::size_t i = 0; i < 24; ++i) {
+      const LocalizationFrame f =
+          localization.addScan(simulateFrame(*elsewhere, i), elsewhere->timestamp(i), i);
+      EXPECT_NE(f.status, LocalizationStatus::kLocalized)
+          << "frame " << i << ": " << f.message;
+      if (f.message.find("started in the background") != std::string::npos)
+        started.push_back(i);
+      far_notes += f.message.find("far from the map: ") != std::string::npos ? 1 : 0;
+      // An attempt is taken after its lag: 3 frames far from the map, 1 near it.
+      const std::string taken =
+          far_expected ? "from the scan 3 frames before" : "from the scan 1 frame before";
+      if (!started.empty() && i == started.front() + (far_expected ? 3 : 1)) {
+        EXPECT_NE(f.message.find(taken), std::string::npos)
+            << "frame " << i << ": " << f.message;
+      }
+    }
+    ASSERT_GE(started.size(), 2u) << "no attempt in the background";
+    for (std::size_t k = 1; k < started.size(); ++k)
+      EXPECT_EQ(started[k] - started[k - 1], far_expected ? 5u : 2u)
+          << "attempts at frames " << started[k - 1] << " and " << started[k];
+    std::printf(
+        "simulated: start %.0f m from the map, far_radius_m %.0f: %zu attempts in "
+        "the background after the back-off, %d frames said far from the map\n",
+        (start.translation() - m.truth(0).translation()).norm(),
+        far_radius_m,
+        started.size(),
+        far_notes);
+    EXPECT_EQ(far_notes > 0, far_expected);
+  }
+}
+
 /// A prior pose (MapLocalization's dead reckoning) makes the key-frames near it
 /// candidates whatever their appearance: with retrieval switched off (an appearance
 /// score no key-frame reaches), second-pass scans are placed from a prior 3 m and 5 deg
@@ -722,6 +778,15 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
       "got 4 (tentative_window_frames 3)");
   expectInvalid(mapParams([](auto& p) { p.background_placement_lag = -1; }),
                 "background_placement_lag must be >= 0");
+  expectInvalid(mapParams([](auto& p) { p.far_radius_m = -1.0; }),
+                "far_radius_m and far_drift_ratio must be >= 0, got -1");
+  expectInvalid(mapParams([](auto& p) { p.far_drift_ratio = std::nan(""); }),
+                "far_radius_m and far_drift_ratio must be >= 0");
+  expectInvalid(mapParams([](auto& p) { p.far_placement_every = 0; }),
+                "far_placement_every must be >= 1");
+  expectInvalid(
+      mapParams([](auto& p) { p.far_placement_lag = 4; }),
+      "far_placement_lag >= 0 and at most tentative_window_frames, got 8 and 4");
   expectInvalid(
       mapParams([](auto& p) { p.prior_max_radius_m = 5.0; }),
       "prior_max_radius_m >= prior_radius_m, got 10.000000, 0.020000 and 5.000000");
