@@ -446,6 +446,7 @@ run(int argc, char** argv)
       {"prior_radius_m", params.prior_radius_m},
       {"background_lag", params.background_placement_lag},
       {"far_radius_m", params.far_radius_m},
+      {"far_drift_ratio", params.far_drift_ratio},
       {"far_every", params.far_placement_every},
       {"far_lag", params.far_placement_lag},
       {"tentative_by_alignment", params.confirm_tentative_by_alignment},

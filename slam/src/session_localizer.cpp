@@ -432,15 +432,17 @@ MapLocalizationParams::isValid(std::string* why) const
         "got " +
         std::to_string(background_placement_lag) + " (tentative_window_frames " +
         std::to_string(tentative_window_frames) + ")");
-  if (!(far_radius_m >= 0.0) || !(far_drift_ratio >= 0.0))
-    return fail("far_radius_m and far_drift_ratio must be >= 0, got " +
+  if (!(far_radius_m >= 0.0) || !(far_drift_ratio >= 0.0) ||
+      !std::isfinite(far_radius_m) || !std::isfinite(far_drift_ratio))
+    return fail("far_radius_m and far_drift_ratio must be finite and >= 0, got " +
                 std::to_string(far_radius_m) + " and " + std::to_string(far_drift_ratio));
   if (far_placement_every < 1 || far_placement_lag < 0 ||
       (tentative_window_frames > 0 && far_placement_lag > tentative_window_frames))
     return fail("far_placement_every must be >= 1 and far_placement_lag >= 0 and at most "
                 "tentative_window_frames, got " +
                 std::to_string(far_placement_every) + " and " +
-                std::to_string(far_placement_lag));
+                std::to_string(far_placement_lag) + " (tentative_window_frames " +
+                std::to_string(tentative_window_frames) + ")");
   return true;
 }
 
@@ -586,6 +588,9 @@ struct MapLocalization::Impl
     if (params.placement_backoff_after == 0 ||
         failed_placements < params.placement_backoff_after)
       return true;
+    if (pending)
+      return false; // the back-off's attempt still runs (one with a longer lag than
+                    // the interval now, started far from the map)
     if (recentWithinWindow())
       return true; // a tentative placement waits for a second one to agree
     return frames - last_attempt_frame >= static_cast<std::size_t>(placementEvery());
@@ -600,6 +605,8 @@ struct MapLocalization::Impl
       return std::nullopt;
     const double radius = params.far_radius_m + params.far_drift_ratio * travelled_m;
     double nearest = std::numeric_limits<double>::infinity();
+    // Every key-frame of the map counts, also one without a cloud or features that no
+    // placement can use: near it the usual schedule holds, the safer side.
     for (const KeyFrame::Ptr& kf : localizer.session().keyframes) {
       if (sessionComponentOf(localizer.session(), kf->id) != 0)
         continue; // a separate map in another frame

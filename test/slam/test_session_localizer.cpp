@@ -11,6 +11,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <gtest/gtest.h>
+#include <limits>
 #include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/rast_slam.h>
 #include <pcl/slam/session.h>
@@ -534,18 +535,24 @@ TEST(MapLocalization, AttemptsFarFromTheMapAreFewerAndLater)
   const MappedLoop m = mapLoop(true, 40);
   const auto elsewhere = pathSimulator(PathType::kStraight, 24, 0.0, 9);
   const Pose3d far_away(Eigen::Translation3d(1000.0, 0.0, 0.0));
-  for (const auto& [start, far_radius_m, far_expected] :
-       {std::tuple{far_away, 30.0, true},
-        std::tuple{m.truth(0), 30.0, false},
-        std::tuple{far_away, 0.0, false}}) {
+  // Backed off after 6 attempts: every 2 frames, taken 1 frame later; far: every 5,
+  // taken 3 frames later.
+  const auto schedule = [](double far_radius_m, double far_drift_ratio) {
     MapLocalizationParams params;
     params.placement_backoff_after = 6;
     params.placement_every = 2;
     params.background_placement_lag = 1;
     params.far_radius_m = far_radius_m;
+    params.far_drift_ratio = far_drift_ratio;
     params.far_placement_every = 5;
     params.far_placement_lag = 3;
-    MapLocalization localization(*m.localizer, m.odometry, params);
+    return params;
+  };
+  for (const auto& [start, far_radius_m, far_expected] :
+       {std::tuple{far_away, 30.0, true},
+        std::tuple{m.truth(0), 30.0, false},
+        std::tuple{far_away, 0.0, false}}) {
+    MapLocalization localization(*m.localizer, m.odometry, schedule(far_radius_m, 0.2));
     localization.setInitialPose(start);
     std::vector<std::size_t> started;
     int far_notes = 0;
@@ -578,6 +585,40 @@ TEST(MapLocalization, AttemptsFarFromTheMapAreFewerAndLater)
         far_notes);
     EXPECT_EQ(far_notes > 0, far_expected);
   }
+  // The drift allowance grows with the distance driven, so the same drive turns from
+  // far to near: an attempt started far (taken 3 frames later) may still run when the
+  // near schedule (every 2 frames) is due. Nothing else is tried while it runs. The
+  // drive goes on away from the map at 1 m a frame from 1 km, and 30 m plus 80 or 120
+  // times the distance driven reaches it at frame 12 or 8, after far attempts started
+  // at frames 11 or 6.
+  int exercised = 0;
+  for (const double ratio : {80.0, 120.0}) {
+    MapLocalization localization(*m.localizer, m.odometry, schedule(30.0, ratio));
+    localization.setInitialPose(far_away);
+    bool running = false;
+    std::size_t started_at = 0; // the frame the running attempt started on
+    for (std::size_t i = 0; i < 24; ++i) {
+      const LocalizationFrame f =
+          localization.addScan(simulateFrame(*elsewhere, i), elsewhere->timestamp(i), i);
+      if (f.message.find("in the background from the scan") != std::string::npos)
+        running = false;
+      if (running) {
+        EXPECT_FALSE(f.placement_tried)
+            << "ratio " << ratio << ", frame " << i << ", attempt of frame " << started_at
+            << " still running: " << f.message;
+        exercised += f.message.find("far from the map") == std::string::npos ? 1 : 0;
+      }
+      if (f.message.find("started in the background") != std::string::npos) {
+        running = true;
+        started_at = i;
+      }
+    }
+  }
+  std::printf(
+      "simulated: %d frames near the map while an attempt started far from it ran\n",
+      exercised);
+  EXPECT_GT(exercised, 0)
+      << "no drift allowance turned the drive near the map mid-attempt";
 }
 
 /// A prior pose (MapLocalization's dead reckoning) makes the key-frames near it
@@ -779,14 +820,18 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
   expectInvalid(mapParams([](auto& p) { p.background_placement_lag = -1; }),
                 "background_placement_lag must be >= 0");
   expectInvalid(mapParams([](auto& p) { p.far_radius_m = -1.0; }),
-                "far_radius_m and far_drift_ratio must be >= 0, got -1");
+                "far_radius_m and far_drift_ratio must be finite and >= 0, got -1");
   expectInvalid(mapParams([](auto& p) { p.far_drift_ratio = std::nan(""); }),
-                "far_radius_m and far_drift_ratio must be >= 0");
+                "far_radius_m and far_drift_ratio must be finite and >= 0");
+  expectInvalid(mapParams([](auto& p) {
+                  p.far_drift_ratio = std::numeric_limits<double>::infinity();
+                }),
+                "far_radius_m and far_drift_ratio must be finite and >= 0, got 30");
   expectInvalid(mapParams([](auto& p) { p.far_placement_every = 0; }),
                 "far_placement_every must be >= 1");
-  expectInvalid(
-      mapParams([](auto& p) { p.far_placement_lag = 4; }),
-      "far_placement_lag >= 0 and at most tentative_window_frames, got 8 and 4");
+  expectInvalid(mapParams([](auto& p) { p.far_placement_lag = 4; }),
+                "far_placement_lag >= 0 and at most tentative_window_frames, got 8 and 4 "
+                "(tentative_window_frames 3)");
   expectInvalid(
       mapParams([](auto& p) { p.prior_max_radius_m = 5.0; }),
       "prior_max_radius_m >= prior_radius_m, got 10.000000, 0.020000 and 5.000000");

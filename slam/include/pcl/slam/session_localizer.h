@@ -272,7 +272,8 @@ struct MapLocalizationParams
   /// KITTI 05: the frame rate fell by a quarter). Negative: the full overlap throughout.
   double lost_prior_min_dense_overlap = -1.0;
   /// Off the map, far from it, attempts are made less often and taken later: once the
-  /// run has been placed, its dead-reckoned pose is far from the map when no session
+  /// run has a pose on the map (placed, or given by setInitialPose), its dead-reckoned
+  /// pose is far from the map when no session
   /// key-frame lies within far_radius_m plus far_drift_ratio of the distance travelled
   /// since the map last confirmed a pose (an odometry drifting 16 % in open fields,
   /// simulated KITTI 00, is still near by that measure). There, backed off, an attempt
@@ -280,10 +281,13 @@ struct MapLocalizationParams
   /// so that the odometry's frames do not wait for it: such attempts fail, and they
   /// cost a quarter of the frame rate of a drive mostly off the map (simulated KITTI
   /// 00 second drive: 61.6 fps with them, 81.7 fps with none after the back-off). A
-  /// run never placed has no dead-reckoned pose and keeps the usual schedule, as do
-  /// cold starts and the frames after a jump. Never more often than placement_every
-  /// nor sooner than background_placement_lag (0: at once, near or far); the lag at
-  /// most tentative_window_frames. far_radius_m 0: no such schedule.
+  /// run with no pose on the map yet has no dead-reckoned pose and keeps the usual
+  /// schedule, as do cold starts and the frames after a jump. Never more often than
+  /// placement_every nor sooner than background_placement_lag (0: at once, near or
+  /// far); the lag at most tentative_window_frames, so that a tentative placement taken
+  /// then can still be confirmed by that frame's alignment; far_placement_every at
+  /// most the lag runs the far attempts at once, as for background_placement_lag. No
+  /// attempt starts while one runs. far_radius_m 0: no such schedule.
   double far_radius_m = 30.0;
   double far_drift_ratio = 0.2;
   int far_placement_every = 8;
