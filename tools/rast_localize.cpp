@@ -171,18 +171,19 @@ run(int argc, char** argv)
               &params.far_placement_lag);
   // Placement thresholds (SessionLocalizerParams::verification): fewer accept more
   // placements, between passes that share less, at the risk of a wrong one.
-  const rast::LoopDetectorParams loop_defaults;
-  int place_min_score = loop_defaults.min_appearance_score;
-  int place_min_initial = loop_defaults.min_initial_inliers;
-  int place_min_inliers = loop_defaults.min_inliers;
+  const rast::SessionLocalizerParams localizer_defaults;
+  const rast::LoopDetectorParams& placement_defaults = localizer_defaults.verification;
+  int place_min_score = placement_defaults.min_appearance_score;
+  int place_min_initial = placement_defaults.min_initial_inliers;
+  int place_min_inliers = placement_defaults.min_inliers;
   args.addInt("place-min-score",
               "placement: appearance votes a key-frame needs to be verified",
               &place_min_score);
   args.addInt("place-min-initial",
               "placement: RANSAC inliers of the first (ratio-test) matches", &place_min_initial);
-  args.addInt("place-min-inliers", "placement: RANSAC inliers after guided matching",
+  args.addInt("place-min-inliers",
+              "placement: RANSAC inliers after guided matching",
               &place_min_inliers);
-  const rast::SessionLocalizerParams localizer_defaults;
   int prior_candidates = localizer_defaults.max_prior_candidates;
 
   args.addInt(

@@ -457,6 +457,10 @@ run(int argc, char** argv)
   if (prior) {
     rast::SessionLocalizerParams localizer_params;
     localizer_params.odometry = params.odometry;
+    // The merge places every key-frame of the drive and was measured with the loop
+    // closure's appearance score (session 21); the localization's lower one is not.
+    localizer_params.verification.min_appearance_score =
+        rast::LoopDetectorParams().min_appearance_score;
     localizer = std::make_unique<rast::SessionLocalizer>(std::move(*prior), localizer_params);
     prior.reset();
   }

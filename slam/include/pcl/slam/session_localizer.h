@@ -33,10 +33,15 @@ struct SessionLocalizerParams
   /// Retrieval and verification. The key-frame and travel gaps that keep a loop away
   /// from its own recent past do not apply to a map from another run: they are set so
   /// that every key-frame is eligible. Another run pairs few features by the ratio
-  /// test: rotation_filtered_matching is on.
+  /// test: rotation_filtered_matching is on. Another run also shares fewer words with
+  /// the map than a loop within one run does, so a key-frame needs an appearance score
+  /// of 15 instead of the loop closure's 20 to be verified: on the simulated KITTI 00
+  /// second drive of the tuning seed 42, 615 instead of 604 of 620 mapped-road frames
+  /// localized, none wrong (session 33). The verification's checks are the same.
   LoopDetectorParams verification = [] {
     LoopDetectorParams p;
     p.rotation_filtered_matching = true;
+    p.min_appearance_score = 15;
     return p;
   }();
   /// Key-frames verified per scan, best appearance first (>= 1).
