@@ -166,6 +166,11 @@ def statuses(path):
         return list(csv.DictReader(f))
 
 
+def localized_online(row):
+    """Localized as the run went: not localized later by a placement's backtracking."""
+    return row["status"] == "localized" and row.get("backtracked", "0") != "1"
+
+
 def kidnap(a, out, sim, session, gt, n, second_first, on_map, tool, loc, localized, truth):
     if len(on_map) <= 400:
         print("\nkidnapping: not measured: %d frames on mapped roads" % len(on_map))
@@ -193,7 +198,7 @@ def kidnap(a, out, sim, session, gt, n, second_first, on_map, tool, loc, localiz
     # localized it, else within 2 m of ground truth (the map's own drift is larger than
     # 0.5 m there, and the localization follows the map).
     for j in range(gap, min(gap + 50, len(kept))):
-        if krows[j]["status"] != "localized":
+        if not localized_online(krows[j]):
             continue
         i = kept[j]
         if (i in localized and dist(position(kp[j]), position(loc[i - second_first])) < 0.5) or \
@@ -302,6 +307,7 @@ def main():
     err = {i: dist(position(loc[i - second_first]), position(gt[i])) for i in range(second_first, n)}
     localized = {i for i in range(second_first, n) if rows[i - second_first]["status"] == "localized"}
     on_loc = [i for i in on_map if i in localized]
+    on_online = [i for i in on_loc if localized_online(rows[i - second_first])]
     ate_map = math.sqrt(sum(err[i] ** 2 for i in on_loc) / max(1, len(on_loc)))
     wrong = [i for i in localized if err[i] > 2.0]
     # The map frame placed on the ground truth once, by the map drive's own SE(3)
@@ -323,6 +329,9 @@ def main():
           "(against ground truth: includes the map's own error), largest %.3f m"
           % (len(on_loc), len(on_map), 100.0 * len(on_loc) / max(1, len(on_map)), ate_map,
              max([err[i] for i in on_loc] or [0])))
+    print("  of those, %d localized as the run went (%.1f %%), %d later, by a placement's "
+          "backtracking" % (len(on_online), 100.0 * len(on_online) / max(1, len(on_map)),
+                            len(on_loc) - len(on_online)))
     print("  ATE with the map frame aligned once by the map drive's SE(3) fit (the ATE "
           "convention; the second drive is not fitted): %.3f m, largest %.3f m"
           % (ate_aligned, max(err_aligned.values() or [0])))
@@ -405,7 +414,7 @@ def cold_starts(a, out, sim, session, gt, n, on_map, tool, truth):
                                    str(f + 2), "-output", d], "cold.log")
         cp = read_kitti(os.path.join(d, "poses_kitti.txt"))
         cr = statuses(os.path.join(d, "status.csv"))
-        first = next((j for j, r in enumerate(cr) if r["status"] == "localized"), None)
+        first = next((j for j, r in enumerate(cr) if localized_online(r)), None)
         if first is None:
             continue
         e_gt = dist(position(cp[first]), position(gt[f + first]))

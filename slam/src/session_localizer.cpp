@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <deque>
 #include <functional>
@@ -443,6 +444,8 @@ MapLocalizationParams::isValid(std::string* why) const
                 std::to_string(far_placement_every) + " and " +
                 std::to_string(far_placement_lag) + " (tentative_window_frames " +
                 std::to_string(tentative_window_frames) + ")");
+  if (backtrack_frames < 0)
+    return fail("backtrack_frames must be >= 0, got " + std::to_string(backtrack_frames));
   return true;
 }
 
@@ -486,12 +489,19 @@ struct MapLocalization::Impl
     return o;
   }
 
-  /// MapLocalization::addScan (\a next: the look-ahead scan, or null).
+  /// MapLocalization::addScan (\a next: the look-ahead scan, or null): localize(),
+  /// then the frames before a placement backwards (backtrack()).
   LocalizationFrame add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_scan,
                         double timestamp_s,
                         std::size_t frame_index,
                         const std::vector<float>& point_times_s,
                         const OdometryInput* next);
+  /// This frame alone: aligned to the map, placed, or carried on by the odometry.
+  LocalizationFrame localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_scan,
+                             double timestamp_s,
+                             std::size_t frame_index,
+                             const std::vector<float>& point_times_s,
+                             const OdometryInput* next);
 
   /// An alignment to the map that confirmed a pose.
   struct Alignment
@@ -582,8 +592,10 @@ struct MapLocalization::Impl
                                    static_cast<std::size_t>(params.tentative_window_frames);
   }
 
-  /// Whether this frame tries a placement (MapLocalizationParams::placement_backoff_after).
-  bool placementDue() const
+  /// Whether this frame tries a placement
+  /// (MapLocalizationParams::placement_backoff_after; \a far: its prediction is far from
+  /// the map, farFromMap()).
+  bool placementDue(bool far) const
   {
     if (params.placement_backoff_after == 0 ||
         failed_placements < params.placement_backoff_after)
@@ -593,7 +605,7 @@ struct MapLocalization::Impl
                     // the interval now, started far from the map)
     if (recentWithinWindow())
       return true; // a tentative placement waits for a second one to agree
-    return frames - last_attempt_frame >= static_cast<std::size_t>(placementEvery());
+    return frames - last_attempt_frame >= static_cast<std::size_t>(placementEvery(far));
   }
 
   /// Distance [m] from \a predicted to the nearest session key-frame of the map when
@@ -618,18 +630,17 @@ struct MapLocalization::Impl
     }
     return nearest;
   }
-  std::optional<double> far_from_map; ///< farFromMap of this frame's prediction
 
-  /// The back-off's attempt interval and background lag of this frame: never more
-  /// often or sooner far from the map than near it.
-  int placementEvery() const
+  /// The back-off's attempt interval and background lag, \a far from the map or not:
+  /// never more often or sooner far from the map than near it.
+  int placementEvery(bool far) const
   {
-    return far_from_map ? std::max(params.far_placement_every, params.placement_every)
-                        : params.placement_every;
+    return far ? std::max(params.far_placement_every, params.placement_every)
+               : params.placement_every;
   }
-  int placementLag() const
+  int placementLag(bool far) const
   {
-    return far_from_map && params.background_placement_lag > 0
+    return far && params.background_placement_lag > 0
                ? std::max(params.far_placement_lag, params.background_placement_lag)
                : params.background_placement_lag;
   }
@@ -638,9 +649,14 @@ struct MapLocalization::Impl
   /// ones (empty: it does not; MapLocalizationParams::max_rmse_ratio).
   std::string suddenlyWorse(double rmse_m) const
   {
-    if (params.max_rmse_ratio <= 0.0 || recent_rmse.size() < 3)
+    return suddenlyWorse(rmse_m, recent_rmse);
+  }
+  /// ... than \a recent.
+  std::string suddenlyWorse(double rmse_m, const std::deque<double>& recent) const
+  {
+    if (params.max_rmse_ratio <= 0.0 || recent.size() < 3)
       return {};
-    std::vector<double> sorted(recent_rmse.begin(), recent_rmse.end());
+    std::vector<double> sorted(recent.begin(), recent.end());
     std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
     const double median = sorted[sorted.size() / 2];
     if (rmse_m <= std::max(params.rmse_ratio_floor_m, params.max_rmse_ratio * median))
@@ -672,10 +688,10 @@ struct MapLocalization::Impl
 
   /// Whether this frame's attempt, when due, runs in the background: backed off, with
   /// no tentative placement waiting for a second one, and room for one at a time.
-  bool placeInBackground() const
+  bool placeInBackground(bool far) const
   {
-    const int lag = placementLag();
-    return lag > 0 && placementEvery() > lag && params.placement_backoff_after > 0 &&
+    const int lag = placementLag(far);
+    return lag > 0 && placementEvery(far) > lag && params.placement_backoff_after > 0 &&
            failed_placements >= params.placement_backoff_after && !recentWithinWindow() &&
            !pending;
   }
@@ -823,13 +839,168 @@ struct MapLocalization::Impl
       }
       out = prepareRaw(*scan, sweepTimes(scan, point_times_s, dt), params.alignment);
     }
-    if (!out.times.empty() && dt > 0.0)
-      deskewPointsAndNormals(out.points,
-                             out.normals,
-                             out.times,
+    compensate(out, dt, step);
+    return out;
+  }
+
+  /// Move a source's points and normals by the motion \a step over \a dt s (nothing
+  /// when it has no times).
+  void compensate(Source& source, double dt, const Pose3d& step) const
+  {
+    if (!source.times.empty() && dt > 0.0)
+      deskewPointsAndNormals(source.points,
+                             source.normals,
+                             source.times,
                              logSE3(step) / dt,
                              odometry_params.deskew.bins);
-    return out;
+  }
+
+  /// A frame the map did not confirm, kept for a later placement to localize backwards
+  /// (MapLocalizationParams::backtrack_frames).
+  struct Unconfirmed
+  {
+    LocalizationFrame frame; ///< as addScan returned it
+    Pose3d T_odom_lidar = Pose3d::Identity();
+    int odometry_run = 0;
+    bool odometry_tracked = false; ///< by features or the dense step (not predicted only)
+    /// At most kBacktrackPoints of the scan's points, evenly strided, in centimetres,
+    /// with its time as a fraction of [time_min_s, time_max_s] when the scan is
+    /// compensated: 8 bytes a point.
+    struct Packed
+    {
+      std::int16_t x, y, z;
+      std::uint16_t t;
+    };
+    std::vector<Packed> points;
+    bool timed = false;
+    float time_min_s = 0.0f, time_max_s = 0.0f;
+    double dt = 0.0;                  ///< from the scan before
+    Pose3d step = Pose3d::Identity(); ///< the motion it is compensated with
+  };
+  std::deque<Unconfirmed> unconfirmed;
+  /// Points kept of each unconfirmed scan, at most: a quarter of a simulated HDL-64
+  /// scan (100000-125000 points), which the alignment's 0.5 m voxel planes need no
+  /// more of (simulated KITTI 00 second drive: 60 frames localized backwards with every
+  /// fourth point, 49 with every second; 0.26 m from ground truth either way, the map's
+  /// own error there). A VLP-16 scan (under 30000 points) is kept whole.
+  static constexpr std::size_t kBacktrackPoints = 32768;
+  double frame_dt = 0.0;                  ///< this frame's interval ...
+  Pose3d frame_step = Pose3d::Identity(); ///< ... and motion (compensation)
+  bool odometry_tracked = false;          ///< the odometry's last frame was tracked
+
+  /// Keep frame \a f (not confirmed; the odometry ran on it) with a thinned copy of
+  /// its scan (kBacktrackPoints), for a later placement.
+  void keepUnconfirmed(const LocalizationFrame& f,
+                       const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan_ptr,
+                       const std::vector<float>& point_times_s)
+  {
+    const pcl::PointCloud<pcl::PointXYZI>& scan = *scan_ptr;
+    Unconfirmed u;
+    u.frame = f;
+    u.T_odom_lidar = T_odom_previous;
+    u.odometry_run = odometry_run;
+    u.odometry_tracked = odometry_tracked;
+    u.dt = frame_dt;
+    u.step = frame_step;
+    const std::vector<float> times = sweepTimes(scan_ptr, point_times_s, frame_dt);
+    u.timed = !times.empty();
+    if (u.timed) {
+      const auto [lo, hi] = std::minmax_element(times.begin(), times.end());
+      u.time_min_s = *lo;
+      u.time_max_s = *hi;
+    }
+    const float time_scale =
+        u.time_max_s > u.time_min_s ? 65535.0f / (u.time_max_s - u.time_min_s) : 0.0f;
+    constexpr float kMaxM = 327.0f; // int16 centimetres
+    const std::size_t stride = (scan.size() + kBacktrackPoints - 1) / kBacktrackPoints;
+    u.points.reserve(scan.size() / std::max<std::size_t>(stride, 1) + 1);
+    for (std::size_t i = 0; i < scan.size(); i += std::max<std::size_t>(stride, 1)) {
+      const Eigen::Vector3f p = scan[i].getVector3fMap();
+      if (!(std::abs(p.x()) < kMaxM && std::abs(p.y()) < kMaxM &&
+            std::abs(p.z()) < kMaxM))
+        continue; // also NaN
+      const float t = u.timed ? (times[i] - u.time_min_s) * time_scale : 0.0f;
+      u.points.push_back({static_cast<std::int16_t>(std::lrintf(100.0f * p.x())),
+                          static_cast<std::int16_t>(std::lrintf(100.0f * p.y())),
+                          static_cast<std::int16_t>(std::lrintf(100.0f * p.z())),
+                          static_cast<std::uint16_t>(std::lrintf(t))});
+    }
+    unconfirmed.push_back(std::move(u));
+    while (unconfirmed.size() > static_cast<std::size_t>(params.backtrack_frames))
+      unconfirmed.pop_front();
+  }
+
+  /// The frames kept before the placement \a f (unconfirmed), nearest first, aligned
+  /// to the map from the pose of the frame after each moved back by the odometry, until
+  /// one is not confirmed: into f.backtracked_frames.
+  void backtrack(LocalizationFrame& f)
+  {
+    Pose3d T_world_next = f.T_world_lidar;
+    Pose3d T_odom_next = T_odom_previous;
+    bool next_tracked = odometry_tracked;
+    std::deque<double> rmse; // of the frames backtracked, for suddenlyWorse
+    std::string stop;
+    for (auto it = unconfirmed.rbegin(); it != unconfirmed.rend(); ++it) {
+      const Unconfirmed& u = *it;
+      // The odometry's motion between the two: same run, and measured at the later.
+      if (u.odometry_run != odometry_run || !next_tracked) {
+        stop = "frame " + std::to_string(u.frame.frame_index) +
+               ": the odometry's motion from it is unknown (it restarted or lost track)";
+        break;
+      }
+      const Pose3d predicted =
+          normalizedPose(T_world_next * (T_odom_next.inverse() * u.T_odom_lidar));
+      pcl::PointCloud<pcl::PointXYZI> cloud;
+      cloud.resize(u.points.size());
+      std::vector<float> times(u.timed ? u.points.size() : 0);
+      const float time_step = (u.time_max_s - u.time_min_s) / 65535.0f;
+      for (std::size_t i = 0; i < u.points.size(); ++i) {
+        const Unconfirmed::Packed& q = u.points[i];
+        cloud[i].x = 0.01f * q.x;
+        cloud[i].y = 0.01f * q.y;
+        cloud[i].z = 0.01f * q.z;
+        cloud[i].intensity = 0.0f;
+        if (u.timed)
+          times[i] = u.time_min_s + time_step * q.t;
+      }
+      Source source = prepareRaw(cloud, times, params.alignment);
+      compensate(source, u.dt, u.step);
+      std::string why;
+      std::optional<Alignment> a =
+          alignToMap([&]() -> const Source& { return source; }, predicted, why);
+      if (a) {
+        if (std::string worse = suddenlyWorse(a->rmse_m, rmse); !worse.empty()) {
+          why = "key-frame " + std::to_string(a->keyframe) + ": " + worse;
+          a.reset();
+        }
+      }
+      if (!a) {
+        stop = "frame " + std::to_string(u.frame.frame_index) + ": " + why;
+        break;
+      }
+      rmse.push_back(a->rmse_m);
+      LocalizationFrame b = u.frame;
+      b.status = LocalizationStatus::kLocalized;
+      b.T_world_lidar = a->T_world_lidar;
+      b.keyframe = a->keyframe;
+      b.correspondences = a->correspondences;
+      b.rmse_m = a->rmse_m;
+      b.backtracked = true;
+      b.message = "aligned to key-frame " + std::to_string(a->keyframe) +
+                  " backwards from the placement of frame " +
+                  std::to_string(f.frame_index) + " (before: " + u.frame.message + ")";
+      f.backtracked_frames.push_back(std::move(b));
+      T_world_next = a->T_world_lidar;
+      T_odom_next = u.T_odom_lidar;
+      next_tracked = u.odometry_tracked;
+    }
+    if (f.backtracked_frames.empty() && unconfirmed.empty())
+      return;
+    f.message += "; " + std::to_string(f.backtracked_frames.size()) + " of the " +
+                 std::to_string(unconfirmed.size()) +
+                 " unconfirmed frames before it localized backwards";
+    if (!stop.empty())
+      f.message += " (stopped at " + stop + ")";
   }
 
   std::shared_ptr<const PointToPlaneTarget> target(const KeyFrame& kf)
@@ -933,6 +1104,8 @@ struct MapLocalization::Impl
             ? odometry->processFrame(scan, timestamp_s, frame_index, point_times_s, *next)
             : odometry->processFrame(scan, timestamp_s, frame_index, point_times_s);
     step = odometryStep(odo);
+    odometry_tracked = odo.status == TrackingStatus::kFeatures ||
+                       odo.status == TrackingStatus::kDenseFallback;
     return odo;
   }
 
@@ -1127,6 +1300,30 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
                            const std::vector<float>& point_times_s,
                            const OdometryInput* next)
 {
+  LocalizationFrame f = localize(raw_scan, timestamp_s, frame_index, point_times_s, next);
+  if (params.backtrack_frames == 0)
+    return f;
+  const pcl::StopWatch watch;
+  if (f.status == LocalizationStatus::kLocalized) {
+    if (f.placed && f.odometry_ran)
+      backtrack(f);
+    unconfirmed.clear();
+  } else if (f.odometry_ran && raw_scan && !raw_scan->empty()) {
+    keepUnconfirmed(f, raw_scan, point_times_s);
+  } else {
+    unconfirmed.clear(); // no odometry pose to move it by
+  }
+  f.time_ms += watch.getTime();
+  return f;
+}
+
+LocalizationFrame
+MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_scan,
+                                double timestamp_s,
+                                std::size_t frame_index,
+                                const std::vector<float>& point_times_s,
+                                const OdometryInput* next)
+{
   const pcl::StopWatch watch;
   Impl& m = *this;
   m.started = true;
@@ -1167,6 +1364,8 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
   // with this step. Made when first needed: most frames off the map need none.
   const bool has_points = raw_scan && !raw_scan->empty();
   const Pose3d compensation_step = step;
+  m.frame_dt = dt;
+  m.frame_step = step;
   pcl::PointCloud<pcl::PointXYZI>::ConstPtr compensated_scan;
   const auto scan = [&]() -> const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& {
     if (!compensated_scan)
@@ -1279,20 +1478,22 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
   Placement placement;
   bool started_in_background = false;
   const std::optional<PlacementPrior> prior = m.placementPrior(predicted);
-  m.far_from_map = m.params.placement_backoff_after > 0 &&
-                           m.failed_placements >= m.params.placement_backoff_after
-                       ? m.farFromMap(predicted)
-                       : std::nullopt; // only the back-off's schedule depends on it
+  const std::optional<double> far_m =
+      m.params.placement_backoff_after > 0 &&
+              m.failed_placements >= m.params.placement_backoff_after
+          ? m.farFromMap(predicted)
+          : std::nullopt; // only the back-off's schedule depends on it
+  const bool far = far_m.has_value();
   if (!odo->features || odo->features->empty() || !has_points) {
     placement.message = "no features: " + odo->message;
-  } else if (!m.placementDue()) {
+  } else if (!m.placementDue(far)) {
     placement.message = !collected.empty()
                             ? collected
                             : "not tried: " + std::to_string(m.failed_placements) +
                                   " failed placements in a row, one every " +
-                                  std::to_string(m.placementEvery()) + " frames" +
-                                  farNote(m.far_from_map);
-  } else if (m.placeInBackground()) {
+                                  std::to_string(m.placementEvery(far)) + " frames" +
+                                  farNote(far_m);
+  } else if (m.placeInBackground(far)) {
     // The odometry goes on with the next frames meanwhile (the query is a copy).
     f.placement_tried = true;
     KeyFrame query;
@@ -1309,12 +1510,11 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
                    }),
         odo->T_world_lidar,
         m.frames,
-        m.placementLag()};
+        m.placementLag(far)};
     m.last_attempt_frame = m.frames;
-    const int lag = m.placementLag();
+    const int lag = m.placementLag(far);
     placement.message = "started in the background, taken " + std::to_string(lag) +
-                        (lag == 1 ? " frame" : " frames") + " later" +
-                        farNote(m.far_from_map);
+                        (lag == 1 ? " frame" : " frames") + " later" + farNote(far_m);
     if (!collected.empty()) // the one taken this frame placed nothing
       placement.message = collected + "; another " + placement.message;
     started_in_background = true;
@@ -1375,6 +1575,7 @@ MapLocalization::addSkippedScan(double timestamp_s,
   }
   m.last_timestamp_s = timestamp_s;
   m.travelled_m += step.translation().norm();
+  m.unconfirmed.clear(); // no scan to align: a later placement goes back to here only
   if (m.T_world_previous)
     m.carryOn(f, normalizedPose(*m.T_world_previous * step), "skipped: " + reason);
   else

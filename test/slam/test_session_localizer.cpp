@@ -621,6 +621,88 @@ TEST(MapLocalization, AttemptsFarFromTheMapAreFewerAndLater)
       << "no drift allowance turned the drive near the map mid-attempt";
 }
 
+/// A drive enters the map from a road the map lacks and is placed only some frames
+/// after it is on the map (the back-off's schedule here). The frames before the
+/// placement are then localized backwards (MapLocalizationParams::backtrack_frames):
+/// returned with the placing frame, nearest first, at their true poses, none of the
+/// other world's frames before them, at most backtrack_frames, none with 0.
+TEST(MapLocalization, FramesBeforeAPlacementAreLocalizedBackwards)
+{
+  const MappedLoop m = mapLoop(true, 40);
+  const auto elsewhere = pathSimulator(PathType::kStraight, 18, 0.0, 9);
+  std::vector<OdometryInput> drive;
+  for (std::size_t i = 0; i < 18; ++i)
+    drive.push_back({simulateFrame(*elsewhere, i), elsewhere->timestamp(i), i, {}});
+  for (std::size_t j = 0; j < 10; ++j)
+    drive.push_back({simulateFrame(*m.sim, 160 + j),
+                     elsewhere->timestamp(17) + 0.1 * (j + 1),
+                     18 + j,
+                     {}});
+  for (const int backtrack : {20, 3, 0}) {
+    MapLocalizationParams params;
+    params.placement_backoff_after = 6;
+    params.placement_every = 9; // after frame 5: frames 14 and 23 try, at once
+    params.background_placement_lag = 0;
+    params.backtrack_frames = backtrack;
+    MapLocalization localization(*m.localizer, m.odometry, params);
+    std::vector<LocalizationFrame> frames;
+    int placed_at = -1;
+    for (const OdometryInput& s : drive) {
+      LocalizationFrame f = localization.addScan(s.cloud, s.timestamp_s, s.frame_index);
+      frames.push_back(f);
+      for (const LocalizationFrame& b : f.backtracked_frames) {
+        ASSERT_LT(b.frame_index, frames.size());
+        frames[b.frame_index] = b;
+      }
+      if (f.placed && placed_at < 0) {
+        placed_at = static_cast<int>(s.frame_index);
+        // Nearest first, each the frame before the last.
+        for (std::size_t k = 0; k < f.backtracked_frames.size(); ++k)
+          EXPECT_EQ(f.backtracked_frames[k].frame_index, s.frame_index - 1 - k);
+        EXPECT_LE(f.backtracked_frames.size(), static_cast<std::size_t>(backtrack));
+        if (backtrack > 0) {
+          EXPECT_NE(f.message.find("localized backwards"), std::string::npos)
+              << f.message;
+        }
+      }
+    }
+    ASSERT_EQ(placed_at, 23) << "the schedule changed: the test needs the placement late";
+    int backtracked = 0;
+    for (std::size_t k = 0; k < frames.size(); ++k) {
+      const LocalizationFrame& f = frames[k];
+      if (k < 18) {
+        EXPECT_NE(f.status, LocalizationStatus::kLocalized)
+            << "frame " << k << " of the other world: " << f.message;
+        continue;
+      }
+      const Pose3d truth = m.truth(160 + (k - 18));
+      if (f.backtracked) {
+        ++backtracked;
+        EXPECT_EQ(f.status, LocalizationStatus::kLocalized);
+        EXPECT_LT((f.T_world_lidar.translation() - truth.translation()).norm(), 0.3)
+            << "frame " << k << ": " << f.message;
+        EXPECT_LT(rotationErrorDeg(f.T_world_lidar, truth), 1.0) << "frame " << k;
+      }
+    }
+    std::printf(
+        "simulated: backtrack_frames %d: placed at frame 23, %d of the 5 frames on "
+        "the map before it localized backwards: %s\n",
+        backtrack,
+        backtracked,
+        frames[23].message.c_str());
+    // Frames 18-22 are on the map. The odometry has not found its feet yet on the
+    // first of them (it still holds the other world's local map): the placement of 23
+    // reaches the frames after, or as many as backtrack_frames keeps.
+    if (backtrack >= 5) {
+      EXPECT_GE(backtracked, 3);
+      EXPECT_NE(frames[23].message.find("(stopped at "), std::string::npos)
+          << frames[23].message;
+    } else {
+      EXPECT_EQ(backtracked, backtrack);
+    }
+  }
+}
+
 /// A prior pose (MapLocalization's dead reckoning) makes the key-frames near it
 /// candidates whatever their appearance: with retrieval switched off (an appearance
 /// score no key-frame reaches), second-pass scans are placed from a prior 3 m and 5 deg
@@ -832,6 +914,8 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
   expectInvalid(mapParams([](auto& p) { p.far_placement_lag = 4; }),
                 "far_placement_lag >= 0 and at most tentative_window_frames, got 8 and 4 "
                 "(tentative_window_frames 3)");
+  expectInvalid(mapParams([](auto& p) { p.backtrack_frames = -1; }),
+                "backtrack_frames must be >= 0, got -1");
   expectInvalid(
       mapParams([](auto& p) { p.prior_max_radius_m = 5.0; }),
       "prior_max_radius_m >= prior_radius_m, got 10.000000, 0.020000 and 5.000000");

@@ -2,18 +2,17 @@
 /// -save-session and localized again from a later scan with no initial pose; bad
 /// sessions and bad arguments refused before any work.
 
-#include <pcl/io/pose_io.h>
-
-#include <gtest/gtest.h>
-
-#include <nlohmann/json.hpp>
-
 #include "simulated_drive.h"
 #include "test_data.h"
 
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <pcl/io/pose_io.h>
 #include <string>
+#include <vector>
 
 // This file's names stay its own: a test program compiles several test files as
 // one translation unit (test/CMakeLists.txt).
@@ -140,6 +139,105 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   const auto summary3 = nlohmann::json::parse(readFile(out3 / "summary.json"));
   EXPECT_FALSE(summary3["lookahead"]["on"].get<bool>());
   EXPECT_EQ(summary3["lookahead"]["frames_prepared_ahead"].get<int>(), 0);
+}
+
+/// A drive that enters the map from a road the map lacks: 24 scans of another world,
+/// then the mapped drive's scans 10-39. Placements back off after 20 failures (one
+/// every 9 frames with -place-every 9), so the map's first scans are placed late; the
+/// frames before the placement are then revised in status.csv and the poses
+/// (backtracked 1), and with -backtrack 0 they are not.
+TEST_F(LocalizeTool, FramesBeforeALatePlacementAreRevisedBackwards)
+{
+  const Mapped& m = mapped();
+  const fs::path other = pcl_rast_test::simulateStraightDrive("localize_tool_other", 9);
+  const fs::path input = dir_ / "entering";
+  fs::create_directories(input / "velodyne");
+  std::ifstream other_times(other / "times.txt"), map_times(m.scans / "times.txt");
+  std::vector<std::string> stamps;
+  for (std::string t; std::getline(other_times, t);)
+    stamps.push_back(t);
+  ASSERT_GE(stamps.size(), 24u);
+  stamps.resize(24);
+  const double last_other = std::stod(stamps.back());
+  const auto bin = [](int i) {
+    char name[32];
+    std::snprintf(name, sizeof name, "%06d.bin", i);
+    return std::string(name);
+  };
+  for (int i = 0; i < 24; ++i)
+    fs::copy_file(other / "velodyne" / bin(i), input / "velodyne" / bin(i));
+  for (int j = 0; j < 30; ++j) {
+    fs::copy_file(m.scans / "velodyne" / bin(10 + j), input / "velodyne" / bin(24 + j));
+    stamps.push_back(std::to_string(last_other + 0.1 * (j + 1)));
+  }
+  std::ofstream(input / "times.txt") << [&] {
+    std::string all;
+    for (const std::string& t : stamps)
+      all += t + "\n";
+    return all;
+  }();
+
+  const auto localize = [&](const fs::path& out, const std::string& extra) {
+    EXPECT_EQ(run("-session " + quoted(m.session) + " -input " + quoted(input) +
+                  " -output " + quoted(out) + " -place-every 9 -software-render -quiet" +
+                  extra),
+              0)
+        << readFile(log_);
+    return nlohmann::json::parse(readFile(out / "summary.json"));
+  };
+  const auto rows = [](const fs::path& csv_path) {
+    std::ifstream csv(csv_path);
+    std::vector<std::string> lines;
+    for (std::string line; std::getline(csv, line);)
+      lines.push_back(line);
+    return lines;
+  };
+  const fs::path out = dir_ / "out", plain = dir_ / "plain";
+  const auto summary = localize(out, "");
+  const auto summary_plain = localize(plain, " -backtrack 0");
+  const int first = summary["first_localized_frame"].get<int>();
+  // As the run went: placed late, the same frame with and without backtracking.
+  EXPECT_GT(first, 24) << "placed at the map's first scan: the test needs it late";
+  EXPECT_EQ(summary_plain["first_localized_frame"].get<int>(), first);
+  EXPECT_EQ(summary["placement"]["backtrack_frames"].get<int>(), 20);
+  EXPECT_EQ(summary_plain["frames_backtracked"].get<int>(), 0);
+  const int backtracked = summary["frames_backtracked"].get<int>();
+  EXPECT_GE(backtracked, 1);
+  EXPECT_EQ(summary["frames_localized"].get<int>(),
+            summary_plain["frames_localized"].get<int>() + backtracked);
+
+  const std::vector<std::string> lines = rows(out / "status.csv");
+  ASSERT_EQ(lines.size(), 55u);
+  EXPECT_EQ(lines[0].substr(lines[0].rfind(',')), ",backtracked");
+  const auto slam = pcl::rast::readTrajectory((m.slam_out / "poses_kitti.txt").string());
+  const auto loc = pcl::rast::readTrajectory((out / "poses_kitti.txt").string());
+  const auto loc_plain = pcl::rast::readTrajectory((plain / "poses_kitti.txt").string());
+  ASSERT_EQ(loc.poses.size(), 54u);
+  int revised = 0;
+  for (int k = 0; k < 54; ++k) {
+    const std::string& row = lines[k + 1];
+    const bool is_backtracked = row.substr(row.rfind(',')) == ",1";
+    if (!is_backtracked) {
+      EXPECT_TRUE(loc.poses[k].matrix() == loc_plain.poses[k].matrix()) << "frame " << k;
+      continue;
+    }
+    ++revised;
+    EXPECT_GE(k, 24) << "a frame of the other world: " << row;
+    EXPECT_LT(k, first);
+    EXPECT_NE(row.find(",localized,"), std::string::npos) << row;
+    EXPECT_NE(row.find("backwards from the placement of frame " + std::to_string(first)),
+              std::string::npos)
+        << row;
+    // In the map's frame: where the SLAM run put the same scan.
+    EXPECT_LT((loc.poses[k].translation() - slam.poses[10 + k - 24].translation()).norm(),
+              0.15)
+        << "frame " << k;
+  }
+  EXPECT_EQ(revised, backtracked);
+  std::printf("simulated: the map from input frame 24, placed at frame %d, %d frames "
+              "before it revised backwards\n",
+              first,
+              backtracked);
 }
 
 TEST_F(LocalizeTool, BadSessionsAndArgumentsAreRefusedBeforeAnyWork)

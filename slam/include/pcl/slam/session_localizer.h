@@ -297,6 +297,17 @@ struct MapLocalizationParams
   double far_drift_ratio = 0.2;
   int far_placement_every = 8;
   int far_placement_lag = 3;
+  /// After a placement, the frames just before it that the map did not confirm are
+  /// localized after the fact: each, nearest first, is aligned to the map from the pose
+  /// of the frame after it moved back by the odometry, as a tracked frame is aligned
+  /// forwards (the same checks), until one is not confirmed or backtrack_frames were.
+  /// A car entering the map from a road the map lacks is placed only 14-17 frames
+  /// after it is on mapped road (simulated KITTI 00 second drive): placements need the
+  /// features of a scan that overlaps the map well, a tracked frame's alignment does
+  /// not. Those frames come back in the placing frame's LocalizationFrame::backtracked;
+  /// a caller that reports frames as they come reports them late. A thinned copy of
+  /// each such scan is kept meanwhile (at most 32768 points, 256 kB). 0: none.
+  int backtrack_frames = 20;
   /// \brief Whether all values are usable; on failure \a why (if not null) says which.
   bool isValid(std::string* why = nullptr) const;
 };
@@ -327,6 +338,12 @@ struct LocalizationFrame
   double rmse_m = 0.0;     ///< of the map alignment
   double time_ms = 0.0;
   std::string message;
+  /// Localized after the fact, by the placement of a later frame
+  /// (MapLocalizationParams::backtrack_frames): this is the frame as revised then.
+  bool backtracked = false;
+  /// Earlier frames this frame's placement localized after the fact, the nearest
+  /// first (backtracked set): they replace what addScan returned for them.
+  std::vector<LocalizationFrame> backtracked_frames;
 };
 
 /// \brief Localization of a sequence on a session (issue 13): the first scan is placed
