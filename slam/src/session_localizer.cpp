@@ -496,12 +496,19 @@ struct MapLocalization::Impl
                         std::size_t frame_index,
                         const std::vector<float>& point_times_s,
                         const OdometryInput* next);
+  /// A frame's interval from the one before [s] and the motion it was compensated with.
+  struct FrameMotion
+  {
+    double dt = 0.0;
+    Pose3d step = Pose3d::Identity();
+  };
   /// This frame alone: aligned to the map, placed, or carried on by the odometry.
   LocalizationFrame localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_scan,
                              double timestamp_s,
                              std::size_t frame_index,
                              const std::vector<float>& point_times_s,
-                             const OdometryInput* next);
+                             const OdometryInput* next,
+                             FrameMotion& motion);
 
   /// An alignment to the map that confirmed a pose.
   struct Alignment
@@ -884,13 +891,13 @@ struct MapLocalization::Impl
   /// fourth point, 49 with every second; 0.26 m from ground truth either way, the map's
   /// own error there). A VLP-16 scan (under 30000 points) is kept whole.
   static constexpr std::size_t kBacktrackPoints = 32768;
-  double frame_dt = 0.0;                  ///< this frame's interval ...
-  Pose3d frame_step = Pose3d::Identity(); ///< ... and motion (compensation)
-  bool odometry_tracked = false;          ///< the odometry's last frame was tracked
+  bool odometry_tracked = false; ///< the odometry's last frame was tracked
 
-  /// Keep frame \a f (not confirmed; the odometry ran on it) with a thinned copy of
-  /// its scan (kBacktrackPoints), for a later placement.
+  /// Keep frame \a f (not confirmed; the odometry ran on it; compensated with the
+  /// motion \a motion.step over motion.dt s) with a thinned copy of its scan
+  /// (kBacktrackPoints), for a later placement.
   void keepUnconfirmed(const LocalizationFrame& f,
+                       const FrameMotion& motion,
                        const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan_ptr,
                        const std::vector<float>& point_times_s)
   {
@@ -900,9 +907,9 @@ struct MapLocalization::Impl
     u.T_odom_lidar = T_odom_previous;
     u.odometry_run = odometry_run;
     u.odometry_tracked = odometry_tracked;
-    u.dt = frame_dt;
-    u.step = frame_step;
-    const std::vector<float> times = sweepTimes(scan_ptr, point_times_s, frame_dt);
+    u.dt = motion.dt;
+    u.step = motion.step;
+    const std::vector<float> times = sweepTimes(scan_ptr, point_times_s, motion.dt);
     u.timed = !times.empty();
     if (u.timed) {
       const auto [lo, hi] = std::minmax_element(times.begin(), times.end());
@@ -938,7 +945,10 @@ struct MapLocalization::Impl
     Pose3d T_world_next = f.T_world_lidar;
     Pose3d T_odom_next = T_odom_previous;
     bool next_tracked = odometry_tracked;
-    std::deque<double> rmse; // of the frames backtracked, for suddenlyWorse
+    std::deque<double> rmse; // of the last frames backtracked, for suddenlyWorse
+    // Targets built for these frames stay out of the cache: the frames after the
+    // placement align as they would without backtracking.
+    std::map<KeyFrameId, std::shared_ptr<const PointToPlaneTarget>> scratch;
     std::string stop;
     for (auto it = unconfirmed.rbegin(); it != unconfirmed.rend(); ++it) {
       const Unconfirmed& u = *it;
@@ -967,7 +977,7 @@ struct MapLocalization::Impl
       compensate(source, u.dt, u.step);
       std::string why;
       std::optional<Alignment> a =
-          alignToMap([&]() -> const Source& { return source; }, predicted, why);
+          alignToMap([&]() -> const Source& { return source; }, predicted, why, &scratch);
       if (a) {
         if (std::string worse = suddenlyWorse(a->rmse_m, rmse); !worse.empty()) {
           why = "key-frame " + std::to_string(a->keyframe) + ": " + worse;
@@ -979,6 +989,8 @@ struct MapLocalization::Impl
         break;
       }
       rmse.push_back(a->rmse_m);
+      if (rmse.size() > 10) // as many as a tracked frame is compared with
+        rmse.pop_front();
       LocalizationFrame b = u.frame;
       b.status = LocalizationStatus::kLocalized;
       b.T_world_lidar = a->T_world_lidar;
@@ -994,22 +1006,38 @@ struct MapLocalization::Impl
       T_odom_next = u.T_odom_lidar;
       next_tracked = u.odometry_tracked;
     }
-    if (f.backtracked_frames.empty() && unconfirmed.empty())
+    if (unconfirmed.empty())
       return;
+    if (stop.empty() &&
+        unconfirmed.size() >= static_cast<std::size_t>(params.backtrack_frames))
+      stop = "the first of the " + std::to_string(params.backtrack_frames) +
+             " kept (backtrack_frames)";
     f.message += "; " + std::to_string(f.backtracked_frames.size()) + " of the " +
                  std::to_string(unconfirmed.size()) +
-                 " unconfirmed frames before it localized backwards";
+                 " unconfirmed frames kept before it localized backwards";
     if (!stop.empty())
       f.message += " (stopped at " + stop + ")";
   }
 
-  std::shared_ptr<const PointToPlaneTarget> target(const KeyFrame& kf)
+  /// The alignment target of \a kf: from the cache, else built and cached, or kept in
+  /// \a scratch instead when given.
+  std::shared_ptr<const PointToPlaneTarget> target(
+      const KeyFrame& kf,
+      std::map<KeyFrameId, std::shared_ptr<const PointToPlaneTarget>>* scratch = nullptr)
   {
     if (auto it = targets.find(kf.id); it != targets.end())
       return it->second;
+    if (scratch) {
+      if (auto it = scratch->find(kf.id); it != scratch->end())
+        return it->second;
+    }
     auto t = std::make_shared<PointToPlaneTarget>();
     if (const auto cloud = sessionCloud(localizer.session(), kf.id))
       t->build(*cloud, params.alignment); // else empty: skipped by the alignment
+    if (scratch) {
+      scratch->emplace(kf.id, t);
+      return t;
+    }
     if (targets.size() >= kMaxTargets) {
       targets.erase(target_order.front());
       target_order.pop_front();
@@ -1047,9 +1075,11 @@ struct MapLocalization::Impl
 
   /// Align the scan to the nearest key-frames from \a predicted; the first that
   /// confirms the pose wins.
-  std::optional<Alignment> alignToMap(const std::function<const Source&()>& scan,
-                                      const Pose3d& predicted,
-                                      std::string& why)
+  std::optional<Alignment> alignToMap(
+      const std::function<const Source&()>& scan,
+      const Pose3d& predicted,
+      std::string& why,
+      std::map<KeyFrameId, std::shared_ptr<const PointToPlaneTarget>>* scratch = nullptr)
   {
     const std::vector<const KeyFrame*> near = nearestKeyFrames(predicted);
     if (near.empty()) {
@@ -1062,7 +1092,7 @@ struct MapLocalization::Impl
       return std::nullopt;
     }
     for (const KeyFrame* kf : near) {
-      const auto map = target(*kf);
+      const auto map = target(*kf, scratch);
       if (map->empty())
         continue;
       const Pose3d guess = kf->T_world_keyframe.inverse() * predicted;
@@ -1300,7 +1330,9 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
                            const std::vector<float>& point_times_s,
                            const OdometryInput* next)
 {
-  LocalizationFrame f = localize(raw_scan, timestamp_s, frame_index, point_times_s, next);
+  FrameMotion motion;
+  LocalizationFrame f =
+      localize(raw_scan, timestamp_s, frame_index, point_times_s, next, motion);
   if (params.backtrack_frames == 0)
     return f;
   const pcl::StopWatch watch;
@@ -1309,7 +1341,7 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
       backtrack(f);
     unconfirmed.clear();
   } else if (f.odometry_ran && raw_scan && !raw_scan->empty()) {
-    keepUnconfirmed(f, raw_scan, point_times_s);
+    keepUnconfirmed(f, motion, raw_scan, point_times_s);
   } else {
     unconfirmed.clear(); // no odometry pose to move it by
   }
@@ -1322,7 +1354,8 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
                                 double timestamp_s,
                                 std::size_t frame_index,
                                 const std::vector<float>& point_times_s,
-                                const OdometryInput* next)
+                                const OdometryInput* next,
+                                FrameMotion& motion)
 {
   const pcl::StopWatch watch;
   Impl& m = *this;
@@ -1364,8 +1397,8 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
   // with this step. Made when first needed: most frames off the map need none.
   const bool has_points = raw_scan && !raw_scan->empty();
   const Pose3d compensation_step = step;
-  m.frame_dt = dt;
-  m.frame_step = step;
+  motion.dt = dt;
+  motion.step = step;
   pcl::PointCloud<pcl::PointXYZI>::ConstPtr compensated_scan;
   const auto scan = [&]() -> const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& {
     if (!compensated_scan)

@@ -633,23 +633,38 @@ TEST(MapLocalization, FramesBeforeAPlacementAreLocalizedBackwards)
   std::vector<OdometryInput> drive;
   for (std::size_t i = 0; i < 18; ++i)
     drive.push_back({simulateFrame(*elsewhere, i), elsewhere->timestamp(i), i, {}});
-  for (std::size_t j = 0; j < 10; ++j)
-    drive.push_back({simulateFrame(*m.sim, 160 + j),
-                     elsewhere->timestamp(17) + 0.1 * (j + 1),
-                     18 + j,
-                     {}});
-  for (const int backtrack : {20, 3, 0}) {
+  // The same drive with the map's part as raw sweeps with point times: the kept scans
+  // are motion-compensated when aligned backwards.
+  const auto raw = pathSimulator(PathType::kLoop, 200, 0.25, 3, true);
+  std::vector<OdometryInput> raw_drive = drive;
+  for (std::size_t j = 0; j < 10; ++j) {
+    const double t = elsewhere->timestamp(17) + 0.1 * (j + 1);
+    drive.push_back({simulateFrame(*m.sim, 160 + j), t, 18 + j, {}});
+    OdometryInput s{nullptr, t, 18 + j, {}};
+    auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    raw->simulateFrame(160 + j, *cloud, &s.point_times_s);
+    s.cloud = cloud;
+    raw_drive.push_back(std::move(s));
+  }
+  std::vector<LocalizationFrame> as_returned_without; // backtrack_frames 0
+  std::vector<std::vector<LocalizationFrame>> as_returned_with;
+  for (const auto& [backtrack, timed] : {std::pair{20, false},
+                                         std::pair{3, false},
+                                         std::pair{0, false},
+                                         std::pair{20, true}}) {
     MapLocalizationParams params;
     params.placement_backoff_after = 6;
     params.placement_every = 9; // after frame 5: frames 14 and 23 try, at once
     params.background_placement_lag = 0;
     params.backtrack_frames = backtrack;
     MapLocalization localization(*m.localizer, m.odometry, params);
-    std::vector<LocalizationFrame> frames;
+    std::vector<LocalizationFrame> frames, as_returned;
     int placed_at = -1;
-    for (const OdometryInput& s : drive) {
-      LocalizationFrame f = localization.addScan(s.cloud, s.timestamp_s, s.frame_index);
+    for (const OdometryInput& s : timed ? raw_drive : drive) {
+      LocalizationFrame f =
+          localization.addScan(s.cloud, s.timestamp_s, s.frame_index, s.point_times_s);
       frames.push_back(f);
+      as_returned.push_back(f);
       for (const LocalizationFrame& b : f.backtracked_frames) {
         ASSERT_LT(b.frame_index, frames.size());
         frames[b.frame_index] = b;
@@ -685,8 +700,9 @@ TEST(MapLocalization, FramesBeforeAPlacementAreLocalizedBackwards)
       }
     }
     std::printf(
-        "simulated: backtrack_frames %d: placed at frame 23, %d of the 5 frames on "
+        "simulated%s: backtrack_frames %d: placed at frame 23, %d of the 5 frames on "
         "the map before it localized backwards: %s\n",
+        timed ? " raw sweeps" : "",
         backtrack,
         backtracked,
         frames[23].message.c_str());
@@ -695,10 +711,27 @@ TEST(MapLocalization, FramesBeforeAPlacementAreLocalizedBackwards)
     // reaches the frames after, or as many as backtrack_frames keeps.
     if (backtrack >= 5) {
       EXPECT_GE(backtracked, 3);
-      EXPECT_NE(frames[23].message.find("(stopped at "), std::string::npos)
+      EXPECT_NE(frames[23].message.find(
+                    timed ? "(stopped at " : "the odometry's motion from it is unknown"),
+                std::string::npos)
           << frames[23].message;
     } else {
       EXPECT_EQ(backtracked, backtrack);
+    }
+    if (!timed)
+      (backtrack == 0 ? as_returned_without : as_returned_with.emplace_back()) =
+          as_returned;
+  }
+  // As the frames came, backtracking or not: the same poses (its alignment targets
+  // stay out of the cache the frames after the placement use).
+  ASSERT_EQ(as_returned_with.size(), 2u);
+  for (const auto& with : as_returned_with) {
+    ASSERT_EQ(with.size(), as_returned_without.size());
+    for (std::size_t k = 0; k < with.size(); ++k) {
+      EXPECT_TRUE(with[k].T_world_lidar.matrix() ==
+                  as_returned_without[k].T_world_lidar.matrix())
+          << "frame " << k << ": " << with[k].message;
+      EXPECT_EQ(with[k].status, as_returned_without[k].status) << "frame " << k;
     }
   }
 }

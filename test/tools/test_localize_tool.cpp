@@ -5,6 +5,7 @@
 #include "simulated_drive.h"
 #include "test_data.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -213,10 +214,12 @@ TEST_F(LocalizeTool, FramesBeforeALatePlacementAreRevisedBackwards)
   const auto loc = pcl::rast::readTrajectory((out / "poses_kitti.txt").string());
   const auto loc_plain = pcl::rast::readTrajectory((plain / "poses_kitti.txt").string());
   ASSERT_EQ(loc.poses.size(), 54u);
-  int revised = 0;
+  int revised = 0, lowest = first;
   for (int k = 0; k < 54; ++k) {
     const std::string& row = lines[k + 1];
     const bool is_backtracked = row.substr(row.rfind(',')) == ",1";
+    if (is_backtracked)
+      lowest = std::min(lowest, k);
     if (!is_backtracked) {
       EXPECT_TRUE(loc.poses[k].matrix() == loc_plain.poses[k].matrix()) << "frame " << k;
       continue;
@@ -234,6 +237,7 @@ TEST_F(LocalizeTool, FramesBeforeALatePlacementAreRevisedBackwards)
         << "frame " << k;
   }
   EXPECT_EQ(revised, backtracked);
+  EXPECT_EQ(lowest, first - backtracked) << "not the frames just before the placement";
   std::printf("simulated: the map from input frame 24, placed at frame %d, %d frames "
               "before it revised backwards\n",
               first,

@@ -300,13 +300,16 @@ struct MapLocalizationParams
   /// After a placement, the frames just before it that the map did not confirm are
   /// localized after the fact: each, nearest first, is aligned to the map from the pose
   /// of the frame after it moved back by the odometry, as a tracked frame is aligned
-  /// forwards (the same checks), until one is not confirmed or backtrack_frames were.
-  /// A car entering the map from a road the map lacks is placed only 14-17 frames
-  /// after it is on mapped road (simulated KITTI 00 second drive): placements need the
-  /// features of a scan that overlaps the map well, a tracked frame's alignment does
-  /// not. Those frames come back in the placing frame's LocalizationFrame::backtracked;
-  /// a caller that reports frames as they come reports them late. A thinned copy of
-  /// each such scan is kept meanwhile (at most 32768 points, 256 kB). 0: none.
+  /// forwards (the same checks), until one is not confirmed, the odometry did not track
+  /// the step between the two (it restarted, or only predicted it), or backtrack_frames
+  /// were; a skipped or empty scan ends the frames kept. A car entering the map from a
+  /// road the map lacks is placed only 14-17 frames after it is on mapped road
+  /// (simulated KITTI 00 second drive): placements need the features of a scan that
+  /// overlaps the map well, a tracked frame's alignment does not. Those frames come
+  /// back in the placing frame's LocalizationFrame::backtracked_frames; a caller that
+  /// reports frames as they come reports them late. Targets built for them are not
+  /// cached: the frames after the placement come out as without backtracking. A thinned
+  /// copy of each such scan is kept meanwhile (at most 32768 points, 256 kB). 0: none.
   int backtrack_frames = 20;
   /// \brief Whether all values are usable; on failure \a why (if not null) says which.
   bool isValid(std::string* why = nullptr) const;
