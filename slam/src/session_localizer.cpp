@@ -501,6 +501,9 @@ struct MapLocalization::Impl
   {
     double dt = 0.0;
     Pose3d step = Pose3d::Identity();
+    /// The odometry ran on the frame and tracked its step from the one before (by
+    /// features or the dense step, not predicted only).
+    bool odometry_tracked = false;
   };
   /// This frame alone: aligned to the map, placed, or carried on by the odometry.
   LocalizationFrame localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_scan,
@@ -732,26 +735,33 @@ struct MapLocalization::Impl
               double dt,
               const Pose3d& step) const
   {
-    const std::vector<float> times = sweepTimes(scan, point_times_s, dt);
-    if (times.empty())
+    std::vector<float> azimuth;
+    const std::vector<float>* times = sweepTimes(scan, point_times_s, dt, azimuth);
+    if (!times)
       return scan;
-    return deskewCloud(*scan, times, logSE3(step) / dt, odometry_params.deskew.bins);
+    return deskewCloud(*scan, *times, logSE3(step) / dt, odometry_params.deskew.bins);
   }
 
   /// The times compensated() moves the points of \a scan by (\a dt s after the scan
-  /// before); empty when it leaves the scan as it is.
-  std::vector<float> sweepTimes(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
-                                const std::vector<float>& point_times_s,
-                                double dt) const
+  /// before): \a point_times_s itself, or the azimuth's, computed into \a azimuth; null
+  /// when it leaves the scan as it is.
+  const std::vector<float>*
+  sweepTimes(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+             const std::vector<float>& point_times_s,
+             double dt,
+             std::vector<float>& azimuth) const
   {
     const DeskewParams& d = odometry_params.deskew;
     if (!scan || scan->empty() || d.mode == DeskewMode::kOff || !(dt > 0.0))
-      return {};
+      return nullptr;
     if (point_times_s.size() == scan->size())
-      return point_times_s;
-    if (d.mode == DeskewMode::kOn)
-      return azimuthTimes(*scan, d.sweep_period_s > 0.0 ? d.sweep_period_s : dt, d.sweep);
-    return {};
+      return &point_times_s;
+    if (d.mode == DeskewMode::kOn) {
+      azimuth =
+          azimuthTimes(*scan, d.sweep_period_s > 0.0 ? d.sweep_period_s : dt, d.sweep);
+      return &azimuth;
+    }
+    return nullptr;
   }
 
   /// The source of \a scan with \a times (sweepTimes(); empty: none), not moved yet.
@@ -806,10 +816,14 @@ struct MapLocalization::Impl
       return;
     const double next_dt =
         (next.timestamp_s - timestamp_s) * odometry_params.deskew.seconds_per_timestamp;
-    std::vector<float> times =
+    std::vector<float> azimuth;
+    const std::vector<float>* next_times =
         sweepTimes(next.cloud,
                    next.point_times_s,
-                   next_dt > 0.0 && std::isfinite(next_dt) ? next_dt : 0.0);
+                   next_dt > 0.0 && std::isfinite(next_dt) ? next_dt : 0.0,
+                   azimuth);
+    // A copy for the source thread: the caller's times may go before it runs.
+    std::vector<float> times = next_times ? *next_times : std::vector<float>();
     try {
       if (!source_thread)
         source_thread = std::make_unique<slam_detail::TaskThread<Source>>();
@@ -844,7 +858,9 @@ struct MapLocalization::Impl
         out.error = "scan: no points";
         return out;
       }
-      out = prepareRaw(*scan, sweepTimes(scan, point_times_s, dt), params.alignment);
+      std::vector<float> azimuth;
+      const std::vector<float>* times = sweepTimes(scan, point_times_s, dt, azimuth);
+      out = prepareRaw(*scan, times ? *times : std::vector<float>(), params.alignment);
     }
     compensate(out, dt, step);
     return out;
@@ -891,7 +907,6 @@ struct MapLocalization::Impl
   /// fourth point, 49 with every second; 0.26 m from ground truth either way, the map's
   /// own error there). A VLP-16 scan (under 30000 points) is kept whole.
   static constexpr std::size_t kBacktrackPoints = 32768;
-  bool odometry_tracked = false; ///< the odometry's last frame was tracked
 
   /// Keep frame \a f (not confirmed; the odometry ran on it; compensated with the
   /// motion \a motion.step over motion.dt s) with a thinned copy of its scan
@@ -906,27 +921,32 @@ struct MapLocalization::Impl
     u.frame = f;
     u.T_odom_lidar = T_odom_previous;
     u.odometry_run = odometry_run;
-    u.odometry_tracked = odometry_tracked;
+    u.odometry_tracked = motion.odometry_tracked;
     u.dt = motion.dt;
     u.step = motion.step;
-    const std::vector<float> times = sweepTimes(scan_ptr, point_times_s, motion.dt);
-    u.timed = !times.empty();
+    std::vector<float> azimuth;
+    const std::vector<float>* times =
+        sweepTimes(scan_ptr, point_times_s, motion.dt, azimuth);
+    const std::size_t stride =
+        std::max<std::size_t>((scan.size() + kBacktrackPoints - 1) / kBacktrackPoints, 1);
+    u.timed = times != nullptr;
     if (u.timed) {
-      const auto [lo, hi] = std::minmax_element(times.begin(), times.end());
-      u.time_min_s = *lo;
-      u.time_max_s = *hi;
+      u.time_min_s = u.time_max_s = (*times)[0];
+      for (std::size_t i = 0; i < scan.size(); i += stride) {
+        u.time_min_s = std::min(u.time_min_s, (*times)[i]);
+        u.time_max_s = std::max(u.time_max_s, (*times)[i]);
+      }
     }
     const float time_scale =
         u.time_max_s > u.time_min_s ? 65535.0f / (u.time_max_s - u.time_min_s) : 0.0f;
     constexpr float kMaxM = 327.0f; // int16 centimetres
-    const std::size_t stride = (scan.size() + kBacktrackPoints - 1) / kBacktrackPoints;
-    u.points.reserve(scan.size() / std::max<std::size_t>(stride, 1) + 1);
-    for (std::size_t i = 0; i < scan.size(); i += std::max<std::size_t>(stride, 1)) {
+    u.points.reserve(scan.size() / stride + 1);
+    for (std::size_t i = 0; i < scan.size(); i += stride) {
       const Eigen::Vector3f p = scan[i].getVector3fMap();
       if (!(std::abs(p.x()) < kMaxM && std::abs(p.y()) < kMaxM &&
             std::abs(p.z()) < kMaxM))
         continue; // also NaN
-      const float t = u.timed ? (times[i] - u.time_min_s) * time_scale : 0.0f;
+      const float t = u.timed ? ((*times)[i] - u.time_min_s) * time_scale : 0.0f;
       u.points.push_back({static_cast<std::int16_t>(std::lrintf(100.0f * p.x())),
                           static_cast<std::int16_t>(std::lrintf(100.0f * p.y())),
                           static_cast<std::int16_t>(std::lrintf(100.0f * p.z())),
@@ -940,11 +960,11 @@ struct MapLocalization::Impl
   /// The frames kept before the placement \a f (unconfirmed), nearest first, aligned
   /// to the map from the pose of the frame after each moved back by the odometry, until
   /// one is not confirmed: into f.backtracked_frames.
-  void backtrack(LocalizationFrame& f)
+  void backtrack(LocalizationFrame& f, const FrameMotion& motion)
   {
     Pose3d T_world_next = f.T_world_lidar;
     Pose3d T_odom_next = T_odom_previous;
-    bool next_tracked = odometry_tracked;
+    bool next_tracked = motion.odometry_tracked;
     std::deque<double> rmse; // of the last frames backtracked, for suddenlyWorse
     // Targets built for these frames stay out of the cache: the frames after the
     // placement align as they would without backtracking.
@@ -1134,8 +1154,6 @@ struct MapLocalization::Impl
             ? odometry->processFrame(scan, timestamp_s, frame_index, point_times_s, *next)
             : odometry->processFrame(scan, timestamp_s, frame_index, point_times_s);
     step = odometryStep(odo);
-    odometry_tracked = odo.status == TrackingStatus::kFeatures ||
-                       odo.status == TrackingStatus::kDenseFallback;
     return odo;
   }
 
@@ -1338,7 +1356,7 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
   const pcl::StopWatch watch;
   if (f.status == LocalizationStatus::kLocalized) {
     if (f.placed && f.odometry_ran)
-      backtrack(f);
+      backtrack(f, motion);
     unconfirmed.clear();
   } else if (f.odometry_ran && raw_scan && !raw_scan->empty()) {
     keepUnconfirmed(f, motion, raw_scan, point_times_s);
@@ -1384,6 +1402,8 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
       step = *velocity_step;
     f.odometry_ran = true;
     f.odometry_prepared_ahead = odo->extracted_ahead;
+    motion.odometry_tracked = odo->status == TrackingStatus::kFeatures ||
+                              odo->status == TrackingStatus::kDenseFallback;
   };
   const bool map_tracks = m.params.track_on_map && m.previous_confirmed && velocity_step &&
                           raw_scan && !raw_scan->empty();

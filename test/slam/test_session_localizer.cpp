@@ -94,6 +94,26 @@ mapLoop(bool load_clouds = true, std::size_t mapped = 150)
   return m;
 }
 
+/// A drive onto the map from a world the map never saw: frames 0 to off - 1 of
+/// \a elsewhere, then `on` frames from frame 160 of the map's own simulator (the lap's
+/// first metres again), timed on from the other world's last frame at 10 Hz.
+std::vector<OdometryInput>
+enteringDrive(const MappedLoop& m,
+              const LidarSimulator& elsewhere,
+              std::size_t off,
+              std::size_t on)
+{
+  std::vector<OdometryInput> drive;
+  for (std::size_t i = 0; i < off; ++i)
+    drive.push_back({simulateFrame(elsewhere, i), elsewhere.timestamp(i), i, {}});
+  for (std::size_t j = 0; j < on; ++j)
+    drive.push_back({simulateFrame(*m.sim, 160 + j),
+                     elsewhere.timestamp(off - 1) + 0.1 * (j + 1),
+                     off + j,
+                     {}});
+  return drive;
+}
+
 TEST(SessionLocalizer, PlacesASecondPassWithNoPriorAndNothingOffTheMap)
 {
   const MappedLoop m = mapLoop();
@@ -415,16 +435,8 @@ TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
   // and the test, which CI runs under TSan, builds it in a quarter of the time.
   const MappedLoop m = mapLoop(true, 40);
   const auto elsewhere = pathSimulator(PathType::kStraight, 18, 0.0, 9);
-  // The drive: 18 frames off the map, then 8 on it (the mapped loop's times go on after
-  // the other world's).
-  std::vector<OdometryInput> drive;
-  for (std::size_t i = 0; i < 18; ++i)
-    drive.push_back({simulateFrame(*elsewhere, i), elsewhere->timestamp(i), i, {}});
-  for (std::size_t j = 0; j < 8; ++j)
-    drive.push_back({simulateFrame(*m.sim, 160 + j),
-                     elsewhere->timestamp(17) + 0.1 * (j + 1),
-                     18 + j,
-                     {}});
+  // The drive: 18 frames off the map, then 8 on it.
+  const std::vector<OdometryInput> drive = enteringDrive(m, *elsewhere, 18, 8);
   const auto addScan = [&](MapLocalization& localization, std::size_t k, bool lookahead) {
     const OdometryInput& s = drive[k];
     return lookahead && k + 1 < drive.size()
@@ -630,21 +642,15 @@ TEST(MapLocalization, FramesBeforeAPlacementAreLocalizedBackwards)
 {
   const MappedLoop m = mapLoop(true, 40);
   const auto elsewhere = pathSimulator(PathType::kStraight, 18, 0.0, 9);
-  std::vector<OdometryInput> drive;
-  for (std::size_t i = 0; i < 18; ++i)
-    drive.push_back({simulateFrame(*elsewhere, i), elsewhere->timestamp(i), i, {}});
+  const std::vector<OdometryInput> drive = enteringDrive(m, *elsewhere, 18, 10);
   // The same drive with the map's part as raw sweeps with point times: the kept scans
   // are motion-compensated when aligned backwards.
   const auto raw = pathSimulator(PathType::kLoop, 200, 0.25, 3, true);
   std::vector<OdometryInput> raw_drive = drive;
   for (std::size_t j = 0; j < 10; ++j) {
-    const double t = elsewhere->timestamp(17) + 0.1 * (j + 1);
-    drive.push_back({simulateFrame(*m.sim, 160 + j), t, 18 + j, {}});
-    OdometryInput s{nullptr, t, 18 + j, {}};
     auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
-    raw->simulateFrame(160 + j, *cloud, &s.point_times_s);
-    s.cloud = cloud;
-    raw_drive.push_back(std::move(s));
+    raw->simulateFrame(160 + j, *cloud, &raw_drive[18 + j].point_times_s);
+    raw_drive[18 + j].cloud = cloud;
   }
   std::vector<LocalizationFrame> as_returned_without; // backtrack_frames 0
   std::vector<std::vector<LocalizationFrame>> as_returned_with;
