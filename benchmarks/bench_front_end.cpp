@@ -306,6 +306,23 @@ BM_ProcessFrameNoRefinement(benchmark::State& state)
 }
 BENCHMARK(BM_ProcessFrameNoRefinement)->Unit(benchmark::kMillisecond)->Iterations(210);
 
+/// With at most range(0) source points in the dense step (-dense-points; 1000 is the
+/// default): what more points cost, side by side (doc/odometry.md, "Dense source
+/// points").
+void
+BM_ProcessFrameDensePoints(benchmark::State& state)
+{
+  rast::OdometryParams params;
+  params.dense.max_source_points = static_cast<int>(state.range(0));
+  processFrames(state, params);
+}
+BENCHMARK(BM_ProcessFrameDensePoints)
+    ->Arg(1000)
+    ->Arg(2000)
+    ->Arg(3000)
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(210);
+
 /// Without the vehicle-dynamics prior (-no-vehicle-prior): its cost, side by side.
 void
 BM_ProcessFrameNoVehiclePrior(benchmark::State& state)
