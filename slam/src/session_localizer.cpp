@@ -858,9 +858,10 @@ struct MapLocalization::Impl
         out.error = "scan: no points";
         return out;
       }
+      static const std::vector<float> kNoTimes;
       std::vector<float> azimuth;
       const std::vector<float>* times = sweepTimes(scan, point_times_s, dt, azimuth);
-      out = prepareRaw(*scan, times ? *times : std::vector<float>(), params.alignment);
+      out = prepareRaw(*scan, times ? *times : kNoTimes, params.alignment); // no copy
     }
     compensate(out, dt, step);
     return out;
