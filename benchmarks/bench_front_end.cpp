@@ -306,7 +306,7 @@ BM_ProcessFrameNoRefinement(benchmark::State& state)
 }
 BENCHMARK(BM_ProcessFrameNoRefinement)->Unit(benchmark::kMillisecond)->Iterations(210);
 
-/// With at most range(0) source points in the dense step (-dense-points; 1000 is the
+/// With at most range(0) source points in the dense step (-dense-points; 2000 is the
 /// default): what more points cost, side by side (doc/odometry.md, "Dense source
 /// points").
 void

@@ -166,8 +166,11 @@ struct DenseTrackingParams
 {
   /// The scan is voxelized with this leaf before refinement [m] ...
   double source_voxel_size_m = 1.0;
-  /// ... and then subsampled (deterministic stride) to at most this many points.
-  int max_source_points = 1000;
+  /// ... and then subsampled (deterministic stride) to at most this many points. 2000
+  /// since session 36 (1000 before): on an open field, where the features find nothing
+  /// and yaw rests on the few hundred points above the ground, 1000 let a dozen frames
+  /// turn 1-2 deg the wrong way (doc/odometry.md, "Dense source points").
+  int max_source_points = 2000;
   /// Leaf of the local map: one plane is fitted per voxel [m].
   double map_voxel_size_m = 1.0;
   /// Points kept per map voxel (the first ones inserted, as in KISS-ICP).
