@@ -216,6 +216,11 @@ run(int argc, char** argv)
               &place_min_inliers);
   int prior_candidates = localizer_defaults.max_prior_candidates;
 
+  int dense_points = localizer_defaults.odometry.dense.max_source_points;
+  args.addInt(
+      "dense-points",
+      "the odometry between map alignments: source points of its dense step, at most",
+      &dense_points);
   args.addInt(
       "prior-candidates",
       "placement: key-frames nearest the dead-reckoned pose verified first (0: none)",
@@ -257,6 +262,9 @@ run(int argc, char** argv)
                                 std::to_string(place_min_score) + " (>= 1), -place-min-initial " +
                                 std::to_string(place_min_initial) + " (>= 3), -place-min-inliers " +
                                 std::to_string(place_min_inliers) + " (>= 3)");
+  if (dense_points < 10)
+    throw std::invalid_argument("bad -dense-points " + std::to_string(dense_points) +
+                                " (>= 10)");
   std::optional<rast::Pose3d> start;
   if (!initial_pose.empty())
     start = parsePose(initial_pose);
@@ -299,6 +307,7 @@ run(int argc, char** argv)
   localizer_params.verification.min_initial_inliers = place_min_initial;
   localizer_params.verification.min_inliers = place_min_inliers;
   localizer_params.max_prior_candidates = prior_candidates;
+  localizer_params.odometry.dense.max_source_points = dense_points;
   std::string deskew_reason, deskew_timing;
   applyDeskewFlags(deskew, reader, static_cast<std::size_t>(stride),
                    localizer_params.odometry.deskew, deskew_reason, deskew_timing);

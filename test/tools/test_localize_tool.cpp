@@ -280,6 +280,11 @@ TEST_F(LocalizeTool, BadSessionsAndArgumentsAreRefusedBeforeAnyWork)
             1);
   EXPECT_NE(readFile(log_).find("-place-min-inliers 2 (>= 3)"), std::string::npos)
       << readFile(log_);
+  EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
+                " -dense-points 5"),
+            1);
+  EXPECT_NE(readFile(log_).find("-dense-points 5 (>= 10)"), std::string::npos)
+      << readFile(log_);
   EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(m.session)), 1);
   EXPECT_FALSE(fs::exists(out / "summary.json"));
   EXPECT_NO_THROW(pcl::rast::readTrajectory((m.slam_out / "poses_kitti.txt").string()));
