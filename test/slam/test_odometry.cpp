@@ -766,11 +766,10 @@ meanFrameError(const Sequence& seq, const std::vector<rast::OdometryFrameResult>
 /// inliers, whose height, roll and pitch are decimetres off, and the dense step from
 /// there can settle in a tilted minimum. The second dense fit from the features' planar
 /// motion with the prior's height and tilt lowers the drift: here the end-point error
-/// after 150 frames is 1.51 vs 1.72 m (400 frames, KITTI t_err 0.17 vs 0.28 %; on 08
-/// 0.62 vs 1.49 %). Frame to frame it is no better since the VLP-16 preset uses 2 m map
-/// voxels (1.19 vs 1.04 cm mean; with 1 m voxels it was 1.37 vs 1.49 cm). All on a dense
-/// step of 1000 source points (the default until session 36): with 2000 the dense step
-/// alone ends 0.138 m off, and the second fit 0.134 m.
+/// after 150 frames is 1.26 vs 1.72 m, and the mean frame-to-frame error 0.86 vs 1.04 cm
+/// (session 36; 400 frames in an earlier session, KITTI t_err 0.17 vs 0.28 %; on 08 0.62
+/// vs 1.49 %). All on a dense step of 1000 source points (the default until session
+/// 36): with 2000 the dense step alone ends 0.138 m off, and the second fit 0.134 m.
 TEST(OdometryRealData, Vlp16WeakFeaturesTakeHeightAndTiltFromThePrior)
 {
   PCL_RAST_REQUIRE_SHARED_DATA(data);
