@@ -9,22 +9,20 @@
 /// module: Hamming matching (mutual check, Lowe's ratio test) and rigid RANSAC. Kept by
 /// RANSAC are drawn green, the rejected ones red.
 
-#include <pcl/features/orb_raster_features.h>
-#include <pcl/registration/hamming_correspondence_estimation.h>
-#include <pcl/registration/rigid_ransac.h>
-#include <pcl/segmentation/sac_ground_removal.h>
-#include <pcl/io/sequence_reader.h>
-
-#include <Eigen/Geometry>
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
-
 #include "cli.h"
 
-#include <pcl/common/time.h>
+#include <Eigen/Geometry>
 #include <cmath>
 #include <fstream>
 #include <iostream>
+#include <opencv2/imgproc.hpp>
+#include <pcl/common/time.h>
+#include <pcl/features/orb_raster_features.h>
+#include <pcl/io/sequence_reader.h>
+#include <pcl/registration/hamming_correspondence_estimation.h>
+#include <pcl/registration/rigid_ransac.h>
+#include <pcl/segmentation/sac_ground_removal.h>
+#include <pcl/visualization/png_io.h>
 #include <string>
 #include <vector>
 
@@ -269,8 +267,14 @@ run(int argc, char** argv)
                is_inlier[m] ? cv::Scalar(0, 220, 0) : cv::Scalar(0, 0, 255), 1, cv::LINE_AA);
     }
   }
-  if (!cv::imwrite(options.output, canvas))
-    throw std::runtime_error("cannot write " + options.output);
+  pcl::rast::Image8 png;
+  png.width = canvas.cols;
+  png.height = canvas.rows;
+  png.channels = canvas.channels();
+  if (!canvas.isContinuous())
+    canvas = canvas.clone();
+  png.pixels.assign(canvas.datastart, canvas.dataend);
+  pcl::rast::savePng(options.output, png);
   std::cerr << "Saved " << options.output << "\n";
   return status;
 }

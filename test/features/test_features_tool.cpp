@@ -1,14 +1,12 @@
 // pcl_rast_features end to end: one scan gives a keypoint image, two scans a match
 // image and the transform between them; bad arguments fail before any work.
+#include "png_image.h"
 #include "test_data.h"
-
-#include <gtest/gtest.h>
-
-#include <opencv2/imgcodecs.hpp>
 
 #include <array>
 #include <cstdio>
 #include <filesystem>
+#include <gtest/gtest.h>
 #include <memory>
 #include <regex>
 #include <string>
@@ -78,14 +76,14 @@ TEST(FeaturesTool, RealKittiScansGiveKeypointAndMatchImages)
   const ToolRun one = runTool(scan0 + " -output " + (out / "one.png").string());
   ASSERT_EQ(one.exit_code, 0) << one.output;
   EXPECT_GT(printedValue(one.output, "features1"), 100.0) << one.output;
-  const cv::Mat image = cv::imread((out / "one.png").string());
+  const cv::Mat image = pcl_rast_test::readPngAsBgr((out / "one.png").string());
   ASSERT_FALSE(image.empty());
   EXPECT_EQ(image.cols, 512); // default raster: +-51.2 m at 0.2 m
 
   const ToolRun two = runTool(scan0 + " " + scan1 + " -output " + (out / "two.png").string());
   ASSERT_EQ(two.exit_code, 0) << two.output;
   EXPECT_GE(printedValue(two.output, "inliers"), 20.0) << two.output;
-  const cv::Mat pair = cv::imread((out / "two.png").string());
+  const cv::Mat pair = pcl_rast_test::readPngAsBgr((out / "two.png").string());
   ASSERT_FALSE(pair.empty());
   EXPECT_GT(pair.cols, 2 * 512);
   // The car moves forward ~0.8 m per frame: scan 1 maps into scan 0 shifted along +x.

@@ -1,7 +1,7 @@
 // Tests of the top-down map render (tools/common/map_render.h): the VTK path on a
 // private Xvfb, the OpenCV fallback, parameter validation and failure paths.
 
-#include <pcl/visualization/map_render.h>
+#include "png_image.h"
 #include "test_data.h"
 
 #include <cerrno>
@@ -10,8 +10,9 @@
 #include <fstream>
 #include <gtest/gtest.h>
 #include <iostream>
-#include <opencv2/imgcodecs.hpp>
 #include <optional>
+#include <pcl/visualization/map_render.h>
+#include <pcl/visualization/png_io.h>
 #include <random>
 #include <set>
 #include <signal.h>
@@ -154,7 +155,7 @@ void
 expectGoodPicture(const std::filesystem::path& png, const MapRenderParams& params)
 {
   ASSERT_TRUE(std::filesystem::exists(png)) << png;
-  const cv::Mat img = cv::imread(png.string(), cv::IMREAD_COLOR);
+  const cv::Mat img = pcl_rast_test::readPngAsBgr(png.string());
   ASSERT_FALSE(img.empty());
   EXPECT_EQ(img.cols, params.width_px);
   EXPECT_EQ(img.rows, params.height_px);
@@ -340,7 +341,7 @@ renderWithFallback(const MapRenderInput& input,
   const auto png = pcl_rast_test::makeTempDir("map_render") / name;
   FallbackPicture picture;
   picture.result = renderMapTopDown(input, params, png.string());
-  picture.image = cv::imread(png.string());
+  picture.image = pcl_rast_test::readPngAsBgr(png.string());
   return picture;
 }
 
@@ -453,6 +454,111 @@ TEST(MapRender, NoMapPointsUnderTheTitle)
   };
   EXPECT_GT(purple(img.rows / 3, 2 * img.rows / 3), 10000) << "the map is missing";
   EXPECT_EQ(purple(0, 30), 0) << "map points drawn under the title";
+}
+
+/// The pixels of \a image at column \a x, row \a y (row 0 at the top).
+std::vector<int>
+pixelAt(const pcl::rast::Image8& image, int x, int y)
+{
+  const auto* p = image.pixels.data() + (static_cast<std::size_t>(y) * image.width + x) *
+                                            static_cast<std::size_t>(image.channels);
+  return std::vector<int>(p, p + image.channels);
+}
+
+TEST(PngIo, ReadsAPngWrittenElsewhereTopRowFirstInBgrOrder)
+{
+  // test/data/rgb_3x2.png, written by a few lines of Python (zlib, no filters): top row
+  // red, green, blue; bottom row white, black and RGB (10, 20, 30).
+  const auto path = std::filesystem::path(PCL_RAST_SOURCE_DIR) / "test/data/rgb_3x2.png";
+  const pcl::rast::Image8 image = pcl::rast::loadPng(path.string());
+  ASSERT_EQ(image.width, 3);
+  ASSERT_EQ(image.height, 2);
+  ASSERT_EQ(image.channels, 3);
+  EXPECT_EQ(pixelAt(image, 0, 0), (std::vector<int>{0, 0, 255}));
+  EXPECT_EQ(pixelAt(image, 1, 0), (std::vector<int>{0, 255, 0}));
+  EXPECT_EQ(pixelAt(image, 2, 0), (std::vector<int>{255, 0, 0}));
+  EXPECT_EQ(pixelAt(image, 0, 1), (std::vector<int>{255, 255, 255}));
+  EXPECT_EQ(pixelAt(image, 2, 1), (std::vector<int>{30, 20, 10}));
+}
+
+TEST(PngIo, WrittenImagesReadBackExactly)
+{
+  const auto dir = pcl_rast_test::makeTempDir("png_io");
+  std::mt19937 rng(7);
+  for (const int channels : {1, 2, 3, 4}) {
+    pcl::rast::Image8 image;
+    image.width = 37; // odd sizes: no row padding can hide
+    image.height = 23;
+    image.channels = channels;
+    image.pixels.resize(static_cast<std::size_t>(37 * 23 * channels));
+    for (auto& v : image.pixels)
+      v = static_cast<std::uint8_t>(rng() & 0xff);
+    const std::string path = (dir / ("c" + std::to_string(channels) + ".png")).string();
+    pcl::rast::savePng(path, image);
+    const pcl::rast::Image8 back = pcl::rast::loadPng(path);
+    EXPECT_EQ(back.width, image.width);
+    EXPECT_EQ(back.height, image.height);
+    EXPECT_EQ(back.channels, channels);
+    EXPECT_TRUE(back.pixels == image.pixels) << channels << " channels";
+  }
+  // Only the pictures: no temporary file is left beside them.
+  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir),
+                          std::filesystem::directory_iterator()),
+            4);
+}
+
+TEST(PngIo, BadImagesAndPathsAreNamed)
+{
+  const auto dir = pcl_rast_test::makeTempDir("png_io");
+  pcl::rast::Image8 image;
+  image.width = 4;
+  image.height = 3;
+  image.channels = 3;
+  image.pixels.assign(4 * 3 * 3, 128);
+  const auto message = [](const auto& call) -> std::string {
+    try {
+      call();
+    } catch (const std::exception& e) {
+      return e.what();
+    }
+    return "no exception";
+  };
+  const std::string ok = (dir / "ok.png").string();
+  pcl::rast::Image8 bad = image;
+  bad.channels = 5;
+  EXPECT_THROW(pcl::rast::savePng(ok, bad), std::invalid_argument);
+  EXPECT_NE(message([&] { pcl::rast::savePng(ok, bad); }).find("channel count 5"),
+            std::string::npos);
+  bad = image;
+  bad.height = 0;
+  EXPECT_THROW(pcl::rast::savePng(ok, bad), std::invalid_argument);
+  bad = image;
+  bad.pixels.pop_back();
+  EXPECT_NE(message([&] { pcl::rast::savePng(ok, bad); }).find("35 pixel bytes"),
+            std::string::npos);
+  EXPECT_FALSE(std::filesystem::exists(ok));
+
+  const std::string missing_folder = (dir / "no_such_folder" / "a.png").string();
+  const std::string write_error =
+      message([&] { pcl::rast::savePng(missing_folder, image); });
+  EXPECT_NE(write_error.find("cannot write '" + missing_folder + "'"), std::string::npos)
+      << write_error;
+
+  // A picture is replaced whole: an old file stays when the new one cannot be written.
+  pcl::rast::savePng(ok, image);
+  bad = image;
+  bad.width = -1;
+  EXPECT_THROW(pcl::rast::savePng(ok, bad), std::invalid_argument);
+  EXPECT_EQ(pcl::rast::loadPng(ok).pixels, image.pixels);
+
+  const std::string not_png = (dir / "text.png").string();
+  std::ofstream(not_png) << "not a picture";
+  EXPECT_NE(
+      message([&] { pcl::rast::loadPng(not_png); }).find("'" + not_png + "': not a PNG"),
+      std::string::npos);
+  const std::string absent = (dir / "absent.png").string();
+  EXPECT_NE(message([&] { pcl::rast::loadPng(absent); }).find("'" + absent + "'"),
+            std::string::npos);
 }
 
 } // namespace

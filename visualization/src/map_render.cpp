@@ -17,7 +17,6 @@
 #include <filesystem>
 #include <limits>
 #include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <poll.h>
 #include <signal.h>

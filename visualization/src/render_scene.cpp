@@ -5,7 +5,6 @@
 #include "render_scene.h"
 
 #include <algorithm>
-#include <atomic>
 #include <cctype>
 #include <cerrno>
 #include <chrono>
@@ -15,11 +14,10 @@
 #include <cstdlib>
 #include <cstring>
 #include <fcntl.h>
-#include <filesystem>
 #include <limits>
 #include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <pcl/visualization/png_io.h>
 #include <poll.h>
 #include <signal.h>
 #include <sstream>
@@ -405,34 +403,21 @@ rasterizeScene(const Scene& s, const MapRenderParams& params)
   return img;
 }
 
-/// Write \a img to \a path through a temporary file in the same folder and a rename.
+/// Write \a img to \a path as a PNG, whole or not at all (savePng).
 bool
 writePngAtomically(const cv::Mat& img, const std::string& path, std::string* why)
 {
-  static std::atomic<int> counter{0};
-  const std::filesystem::path target(path);
-  const std::filesystem::path tmp =
-      target.parent_path() /
-      ("." + target.filename().string() + ".tmp-" + std::to_string(::getpid()) + "-" +
-       std::to_string(counter++) + ".png");
-  bool written = false;
+  CV_Assert(img.depth() == CV_8U);
+  Image8 image;
+  image.width = img.cols;
+  image.height = img.rows;
+  image.channels = img.channels();
+  const cv::Mat continuous = img.isContinuous() ? img : img.clone();
+  image.pixels.assign(continuous.datastart, continuous.dataend);
   try {
-    written = cv::imwrite(tmp.string(), img);
-  } catch (const cv::Exception& e) {
-    *why = "cannot write '" + tmp.string() + "': " + e.what();
-  }
-  if (!written) {
-    if (why->empty())
-      *why = "cannot write '" + tmp.string() + "' (missing folder or no permission?)";
-    std::error_code ignored;
-    std::filesystem::remove(tmp, ignored);
-    return false;
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, target, ec);
-  if (ec) {
-    *why = "cannot rename '" + tmp.string() + "' to '" + path + "': " + ec.message();
-    std::filesystem::remove(tmp, ec);
+    savePng(path, image);
+  } catch (const std::exception& e) {
+    *why = e.what();
     return false;
   }
   return true;

@@ -97,7 +97,8 @@ drawOverlays(cv::Mat& img,
 std::string
 formatNumber(double value, int decimals);
 
-/// Write \a img to \a path through a temporary file in the same folder and a rename.
+/// Write \a img (8-bit) to \a path as a PNG, whole or not at all; false and \a why when
+/// not.
 bool
 writePngAtomically(const cv::Mat& img, const std::string& path, std::string* why);
 
