@@ -1,10 +1,11 @@
-# pcl_rast_add_module(<name> [DEPS <modules...>] [LIBS <libraries...>] [PRIVATE_LIBS <libraries...>])
+# pcl_rast_add_module(<name> [DEPS <modules...>] [PCL <components...>] [LIBS <libraries...>]
+#                     [PRIVATE_LIBS <libraries...>])
 #
 # Builds library pcl_rast::<name> (file libpcl_rast_<name>) from <name>/src/*.cpp with public headers in
 # <name>/include/pcl/<name>/, exports it as pcl_rast::<name> and installs it.
 # Sources are globbed (CONFIGURE_DEPENDS) so that adding a unit is one new file.
 function(pcl_rast_add_module name)
-  cmake_parse_arguments(ARG "" "" "DEPS;LIBS;PRIVATE_LIBS" ${ARGN})
+  cmake_parse_arguments(ARG "" "" "DEPS;PCL;LIBS;PRIVATE_LIBS" ${ARGN})
   file(GLOB srcs CONFIGURE_DEPENDS "${CMAKE_CURRENT_SOURCE_DIR}/src/*.cpp")
   # The target is pcl_rast_<name>_lib (file libpcl_rast_<name>.so): the plain name is
   # taken by the tools (pcl_rast_slam, pcl_rast_features are programs).
@@ -26,8 +27,19 @@ function(pcl_rast_add_module name)
   foreach(dep IN LISTS ARG_DEPS)
     target_link_libraries(${target} PUBLIC pcl_rast::${dep})
   endforeach()
-  # ${PCL_LIBRARIES}, not single pcl_* targets: those lack their inter-module deps.
-  target_link_libraries(${target} PUBLIC ${PCL_LIBRARIES} Eigen3::Eigen ${ARG_LIBS})
+  # In the build tree a module links pcl_common and the PCL components its sources use
+  # (PCL <components>), not all of ${PCL_LIBRARIES}: with the whole set on the link line,
+  # --as-needed recorded pcl_segmentation and pcl_registration, which Debian's pcl_search
+  # refers to, and with them pcl_features, so that every program of the project loaded
+  # 100,000 more symbol relocations at its start (doc/architecture.md, "Start-up time").
+  # Installed, a module still brings all of ${PCL_LIBRARIES} to users' projects, as
+  # before: code that puts our classes where PCL's stood uses the rest of PCL too.
+  set(pcl_used pcl_common)
+  foreach(component IN LISTS ARG_PCL)
+    list(APPEND pcl_used pcl_${component})
+  endforeach()
+  target_link_libraries(${target} PUBLIC "$<BUILD_INTERFACE:${pcl_used}>"
+                        "$<INSTALL_INTERFACE:${PCL_LIBRARIES}>" Eigen3::Eigen ${ARG_LIBS})
   # Libraries only the sources use (OpenCV): consumers get neither their headers nor
   # their include paths.
   target_link_libraries(${target} PRIVATE ${ARG_PRIVATE_LIBS})
