@@ -40,6 +40,13 @@ function(pcl_rast_add_module name)
   endforeach()
   target_link_libraries(${target} PUBLIC "$<BUILD_INTERFACE:${pcl_used}>"
                         "$<INSTALL_INTERFACE:${PCL_LIBRARIES}>" Eigen3::Eigen ${ARG_LIBS})
+  # A library that uses a symbol none of its libraries provides fails to link, instead of
+  # working by luck in programs that load that library for other reasons (FLANN's LZ4 in
+  # features did, session 37). Not in the sanitizer builds: their runtime's symbols come
+  # from the program.
+  if(BUILD_SHARED_LIBS AND NOT CMAKE_CXX_FLAGS MATCHES "-fsanitize")
+    target_link_options(${target} PRIVATE "LINKER:-z,defs")
+  endif()
   # Libraries only the sources use (OpenCV): consumers get neither their headers nor
   # their include paths.
   target_link_libraries(${target} PRIVATE ${ARG_PRIVATE_LIBS})
