@@ -12,6 +12,7 @@ packages=(
   libceres-dev          # Ceres 2.1: bundle adjustment, pose graph
   nlohmann-json3-dev    # JSON summaries and evaluation output
   zlib1g-dev            # crc32 of the files sessions and output sets list
+  libpng-dev            # the PNG pictures (renders, feature images)
   libgtest-dev libgmock-dev libbenchmark-dev
   xvfb xauth libgl1-mesa-dri libx11-dev  # offscreen VTK rendering (Debian VTK is X-only)
   clang libclang-rt-14-dev  # libFuzzer for scripts/fuzz.sh (the sanitizers of CI are gcc's)

@@ -12,7 +12,9 @@
 #include "cli.h"
 
 #include <Eigen/Geometry>
+#include <cctype>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <opencv2/imgproc.hpp>
@@ -197,6 +199,13 @@ run(int argc, char** argv)
   if (!options.raster.isValid(&why) || !options.orb.isValid(&why) ||
       !options.ground.isValid(&why))
     throw std::invalid_argument(why);
+  // The picture is always a PNG: another extension would name a file it is not.
+  std::string extension = std::filesystem::path(options.output).extension().string();
+  for (char& c : extension)
+    c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  if (extension != ".png")
+    throw std::invalid_argument("bad -output '" + options.output +
+                                "': the picture is a PNG, name it *.png");
   if (options.repeat < 1)
     throw std::invalid_argument("-repeat must be >= 1");
   if (!options.reference.empty() && options.scan2.empty())
@@ -273,7 +282,7 @@ run(int argc, char** argv)
   png.channels = canvas.channels();
   if (!canvas.isContinuous())
     canvas = canvas.clone();
-  png.pixels.assign(canvas.datastart, canvas.dataend);
+  png.pixels.assign(canvas.data, canvas.data + canvas.total() * canvas.elemSize());
   pcl::rast::savePng(options.output, png);
   std::cerr << "Saved " << options.output << "\n";
   return status;

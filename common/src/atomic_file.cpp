@@ -1,11 +1,12 @@
 /// \file atomic_file.cpp
 /// \brief Files that are complete or absent: write beside, flush, sync, rename.
 
-#include <pcl/rast/atomic_file.h>
-
+#include <atomic>
 #include <cerrno>
 #include <cstring>
+#include <fcntl.h>
 #include <filesystem>
+#include <pcl/rast/atomic_file.h>
 #include <stdexcept>
 #include <system_error>
 #include <unistd.h>
@@ -24,12 +25,25 @@ writeFileAtomically(const std::string& path, const std::string& content)
 void
 writeFileAtomically(const std::string& path, const std::function<bool(std::FILE*)>& write)
 {
-  const std::string tmp_path = path + ".tmp";
+  // A name of its own for every write (process, count): two writers of one path, in two
+  // processes or threads, never truncate or rename each other's temporary file, and a
+  // file of the user's called PATH.tmp is not touched. O_EXCL refuses one that exists.
+  static std::atomic<unsigned long> writes{0};
+  const std::string tmp_path =
+      path + ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(writes++);
   errno = 0;
-  std::FILE* file = std::fopen(tmp_path.c_str(), "wb");
-  if (!file)
+  const int fd = ::open(tmp_path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+  std::FILE* file = fd >= 0 ? ::fdopen(fd, "wb") : nullptr;
+  if (!file) {
+    const int error = errno;
+    if (fd >= 0) {
+      ::close(fd);
+      std::error_code ignored;
+      std::filesystem::remove(tmp_path, ignored);
+    }
     throw std::runtime_error("writeFileAtomically: cannot create '" + tmp_path +
-                             "': " + std::strerror(errno));
+                             "': " + std::strerror(error));
+  }
   std::string why;
   int error = 0; // the first errno of a failed step: names the cause (disk full...)
   const auto step = [&error](bool ok) {

@@ -61,6 +61,10 @@ TEST(FeaturesTool, BadArgumentsFailBeforeAnyWork)
   EXPECT_EQ(runTool("").exit_code, 1);
   EXPECT_EQ(runTool("a.bin -output x.png -no_such_flag").exit_code, 1);
   EXPECT_EQ(runTool("a.bin -output x.png -projection fisheye").exit_code, 1);
+  const ToolRun jpeg = runTool("a.bin -output /tmp/x.jpg");
+  EXPECT_EQ(jpeg.exit_code, 1) << jpeg.output;
+  EXPECT_NE(jpeg.output.find("bad -output '/tmp/x.jpg'"), std::string::npos)
+      << jpeg.output;
   const ToolRun missing = runTool("/nonexistent/scan.bin -output /tmp/x.png");
   EXPECT_EQ(missing.exit_code, 2) << missing.output;
 }

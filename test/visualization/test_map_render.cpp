@@ -553,9 +553,23 @@ TEST(PngIo, BadImagesAndPathsAreNamed)
 
   const std::string not_png = (dir / "text.png").string();
   std::ofstream(not_png) << "not a picture";
-  EXPECT_NE(
-      message([&] { pcl::rast::loadPng(not_png); }).find("'" + not_png + "': not a PNG"),
-      std::string::npos);
+  EXPECT_NE(message([&] {
+              pcl::rast::loadPng(not_png);
+            }).find("'" + not_png + "': Not a PNG file"),
+            std::string::npos);
+  // A PNG cut short: an error naming the file, not a crash or a half-read picture.
+  const std::string cut = (dir / "cut.png").string();
+  pcl::rast::Image8 large = image;
+  large.width = 300;
+  large.height = 200;
+  large.pixels.resize(300 * 200 * 3);
+  std::mt19937 rng(11);
+  for (auto& v : large.pixels)
+    v = static_cast<std::uint8_t>(rng() & 0xff); // noise: it does not compress away
+  pcl::rast::savePng(cut, large);
+  std::filesystem::resize_file(cut, std::filesystem::file_size(cut) / 2);
+  EXPECT_NE(message([&] { pcl::rast::loadPng(cut); }).find("cannot read '" + cut + "'"),
+            std::string::npos);
   const std::string absent = (dir / "absent.png").string();
   EXPECT_NE(message([&] { pcl::rast::loadPng(absent); }).find("'" + absent + "'"),
             std::string::npos);

@@ -1,49 +1,34 @@
 /// \file png_io.cpp
-/// \brief savePng and loadPng with VTK's PNG writer and reader. The writer encodes into
-/// memory and writeFileAtomically puts the bytes on disk, so a full disk or a missing
-/// folder is reported, and never leaves a part of a picture behind.
+/// \brief savePng and loadPng with libpng's simplified API (png_image): it takes and
+/// gives rows top first in BGR order, reports every failure in its message instead of
+/// printing or jumping, and converts any PNG (palette, 16-bit) to 8 bits on reading.
+/// The picture is encoded in memory and writeFileAtomically puts the bytes on disk, so a
+/// full disk or a missing folder is reported and never leaves part of a picture behind.
 
-#include <cstring>
 #include <filesystem>
 #include <pcl/rast/atomic_file.h>
 #include <pcl/visualization/png_io.h>
+#include <png.h>
 #include <stdexcept>
-#include <utility>
-#include <vtkCommand.h>
-#include <vtkImageData.h>
-#include <vtkNew.h>
-#include <vtkPNGReader.h>
-#include <vtkPNGWriter.h>
-#include <vtkSmartPointer.h>
-#include <vtkUnsignedCharArray.h>
 
 namespace pcl {
 namespace rast {
 namespace {
 
-/// Takes the messages VTK would print for an algorithm (vtkErrorMacro sends them to an
-/// ErrorEvent observer instead of the output window), so the exception can carry them.
-class ErrorCollector : public vtkCommand
+/// libpng's format for 1-4 interleaved 8-bit channels in OpenCV's order.
+png_uint_32
+formatOfChannels(int channels)
 {
-public:
-  static ErrorCollector* New() { return new ErrorCollector; }
-  void Execute(vtkObject*, unsigned long, void* call_data) override
-  {
-    if (call_data && message.empty())
-      message = static_cast<const char*>(call_data);
+  switch (channels) {
+  case 1:
+    return PNG_FORMAT_GRAY;
+  case 2:
+    return PNG_FORMAT_GA;
+  case 3:
+    return PNG_FORMAT_BGR;
+  default:
+    return PNG_FORMAT_BGRA;
   }
-  std::string message;
-};
-
-/// Swap the first and third channel of every pixel (BGR <-> RGB) when there are three
-/// or four channels.
-void
-swapRedAndBlue(std::uint8_t* row, int width, int channels)
-{
-  if (channels < 3)
-    return;
-  for (int x = 0; x < width; ++x)
-    std::swap(row[x * channels], row[x * channels + 2]);
 }
 
 } // namespace
@@ -66,32 +51,31 @@ savePng(const std::string& path, const Image8& image)
         std::to_string(image.width) + " x " + std::to_string(image.height) + " x " +
         std::to_string(image.channels) + " image ('" + path + "')");
 
-  // VTK's image rows run from the bottom up, and its colours are RGB.
-  vtkNew<vtkImageData> data;
-  data->SetDimensions(image.width, image.height, 1);
-  data->AllocateScalars(VTK_UNSIGNED_CHAR, image.channels);
-  for (int r = 0; r < image.height; ++r) {
-    auto* dst =
-        static_cast<std::uint8_t*>(data->GetScalarPointer(0, image.height - 1 - r, 0));
-    std::memcpy(dst, image.pixels.data() + r * row_bytes, row_bytes);
-    swapRedAndBlue(dst, image.width, image.channels);
+  png_image png{};
+  png.version = PNG_IMAGE_VERSION;
+  png.width = static_cast<png_uint_32>(image.width);
+  png.height = static_cast<png_uint_32>(image.height);
+  png.format = formatOfChannels(image.channels);
+  const auto stride = static_cast<png_int_32>(row_bytes);
+  png_alloc_size_t size = 0;
+  std::string bytes;
+  // The first call measures, the second encodes.
+  bool encoded = png_image_write_get_memory_size(
+                     png, size, 0, image.pixels.data(), stride, nullptr) != 0;
+  if (encoded) {
+    bytes.resize(size);
+    encoded =
+        png_image_write_to_memory(
+            &png, bytes.data(), &size, 0, image.pixels.data(), stride, nullptr) != 0;
+    bytes.resize(size);
   }
-
-  vtkNew<vtkPNGWriter> writer;
-  vtkNew<ErrorCollector> errors;
-  writer->AddObserver(vtkCommand::ErrorEvent, errors);
-  writer->SetInputData(data);
-  writer->WriteToMemoryOn();
-  writer->Write();
-  vtkUnsignedCharArray* bytes = writer->GetResult();
-  if (!errors->message.empty() || !bytes || bytes->GetNumberOfValues() == 0)
-    throw std::runtime_error("cannot encode '" + path + "' as PNG" +
-                             (errors->message.empty() ? "" : ": " + errors->message));
+  if (!encoded) {
+    const std::string why = png.message;
+    png_image_free(&png);
+    throw std::runtime_error("cannot encode '" + path + "' as PNG: " + why);
+  }
   try {
-    writeFileAtomically(
-        path,
-        std::string(reinterpret_cast<const char*>(bytes->GetPointer(0)),
-                    static_cast<std::size_t>(bytes->GetNumberOfValues())));
+    writeFileAtomically(path, bytes);
   } catch (const std::runtime_error& e) {
     throw std::runtime_error("cannot write '" + path + "': " + e.what());
   }
@@ -103,32 +87,23 @@ loadPng(const std::string& path)
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec))
     throw std::runtime_error("cannot read '" + path + "': no such file");
-  vtkNew<vtkPNGReader> reader;
-  vtkNew<ErrorCollector> errors;
-  reader->AddObserver(vtkCommand::ErrorEvent, errors);
-  if (!reader->CanReadFile(path.c_str()))
-    throw std::runtime_error("cannot read '" + path + "': not a PNG file");
-  reader->SetFileName(path.c_str());
-  reader->Update();
-  vtkImageData* data = reader->GetOutput();
-  if (!errors->message.empty() || !data || data->GetNumberOfPoints() == 0)
-    throw std::runtime_error("cannot read '" + path + "'" +
-                             (errors->message.empty() ? "" : ": " + errors->message));
-  if (data->GetScalarType() != VTK_UNSIGNED_CHAR)
-    throw std::runtime_error("cannot read '" + path + "': not an 8-bit PNG (" +
-                             data->GetScalarTypeAsString() + " samples)");
-  int dims[3];
-  data->GetDimensions(dims);
+  png_image png{};
+  png.version = PNG_IMAGE_VERSION;
+  if (!png_image_begin_read_from_file(&png, path.c_str())) {
+    const std::string why = png.message;
+    png_image_free(&png);
+    throw std::runtime_error("cannot read '" + path + "': " + why);
+  }
   Image8 image;
-  image.width = dims[0];
-  image.height = dims[1];
-  image.channels = data->GetNumberOfScalarComponents();
-  const std::size_t row_bytes = static_cast<std::size_t>(image.width) * image.channels;
-  image.pixels.resize(row_bytes * image.height);
-  for (int r = 0; r < image.height; ++r) {
-    std::uint8_t* dst = image.pixels.data() + r * row_bytes;
-    std::memcpy(dst, data->GetScalarPointer(0, image.height - 1 - r, 0), row_bytes);
-    swapRedAndBlue(dst, image.width, image.channels);
+  image.width = static_cast<int>(png.width);
+  image.height = static_cast<int>(png.height);
+  image.channels = static_cast<int>(PNG_IMAGE_SAMPLE_CHANNELS(png.format));
+  png.format = formatOfChannels(image.channels); // 8 bits, BGR order, no colour map
+  image.pixels.resize(PNG_IMAGE_SIZE(png));
+  if (!png_image_finish_read(&png, nullptr, image.pixels.data(), 0, nullptr)) {
+    const std::string why = png.message;
+    png_image_free(&png);
+    throw std::runtime_error("cannot read '" + path + "': " + why);
   }
   return image;
 }

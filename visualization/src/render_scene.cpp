@@ -413,7 +413,8 @@ writePngAtomically(const cv::Mat& img, const std::string& path, std::string* why
   image.height = img.rows;
   image.channels = img.channels();
   const cv::Mat continuous = img.isContinuous() ? img : img.clone();
-  image.pixels.assign(continuous.datastart, continuous.dataend);
+  image.pixels.assign(continuous.data,
+                      continuous.data + continuous.total() * continuous.elemSize());
   try {
     savePng(path, image);
   } catch (const std::exception& e) {

@@ -46,7 +46,8 @@ readTrajectory(const std::string& path);
 Trajectory
 readTrajectory(const std::string& path, PoseFormat format);
 
-/// \brief Write poses in KITTI format. Atomic: writes `path.tmp` then renames.
+/// \brief Write poses in KITTI format. Atomic: writes a temporary file beside \a path,
+/// then renames it.
 /// \throws std::runtime_error naming the file when it cannot be written.
 void
 writeKittiPoses(const std::string& path, const PoseVector& poses);

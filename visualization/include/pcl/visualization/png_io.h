@@ -2,12 +2,12 @@
 /// \file png_io.h
 /// \ingroup visualization
 /// \brief PNG files for the pictures the tools write (renders, feature images), read and
-/// written with VTK's PNG classes.
+/// written with libpng's simplified API.
 ///
 /// The tools write PNGs through these two calls rather than OpenCV's imgcodecs: that
 /// module brings GDAL and about 140 shared libraries with it, whose symbol lookups made
 /// every start of a tool take 0.3 s instead of a few hundredths (doc/architecture.md,
-/// "Start-up time"). VTK's image I/O is loaded anyway, by PCL's io module.
+/// "Start-up time"). libpng is loaded anyway, by PCL's io module.
 
 #include <cstdint>
 #include <string>
