@@ -56,6 +56,9 @@ savePng(const std::string& path, const Image8& image)
   png.width = static_cast<png_uint_32>(image.width);
   png.height = static_cast<png_uint_32>(image.height);
   png.format = formatOfChannels(image.channels);
+  // Speed over size, as OpenCV's writer did: a 1600 x 1200 render took 246 ms to encode
+  // without this flag (0.70 MB), against 45 ms with cv::imwrite (1.19 MB).
+  png.flags = PNG_IMAGE_FLAG_FAST;
   const auto stride = static_cast<png_int_32>(row_bytes);
   png_alloc_size_t size = 0;
   std::string bytes;
