@@ -12,7 +12,6 @@
 #include "cli.h"
 
 #include <Eigen/Geometry>
-#include <cctype>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -26,6 +25,7 @@
 #include <pcl/segmentation/sac_ground_removal.h>
 #include <pcl/visualization/png_io.h>
 #include <string>
+#include <strings.h>
 #include <vector>
 
 namespace {
@@ -200,10 +200,8 @@ run(int argc, char** argv)
       !options.ground.isValid(&why))
     throw std::invalid_argument(why);
   // The picture is always a PNG: another extension would name a file it is not.
-  std::string extension = std::filesystem::path(options.output).extension().string();
-  for (char& c : extension)
-    c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  if (extension != ".png")
+  if (::strcasecmp(std::filesystem::path(options.output).extension().c_str(), ".png") !=
+      0)
     throw std::invalid_argument("bad -output '" + options.output +
                                 "': the picture is a PNG, name it *.png");
   if (options.repeat < 1)

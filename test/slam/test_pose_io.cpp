@@ -5,7 +5,6 @@
 #include <filesystem>
 #include <fstream>
 #include <gtest/gtest.h>
-#include <iterator>
 #include <pcl/io/pose_io.h>
 #include <random>
 #include <string>
@@ -41,14 +40,6 @@ void
 writeText(const fs::path& path, const std::string& text)
 {
   std::ofstream(path) << text;
-}
-
-std::string
-readText(const fs::path& path)
-{
-  std::ifstream in(path);
-  return std::string(std::istreambuf_iterator<char>(in),
-                     std::istreambuf_iterator<char>());
 }
 
 /// The message of the runtime_error thrown by \a f, or "" when none is thrown.
@@ -213,7 +204,7 @@ TEST(PoseIo, AtomicWriteLeavesNoTemporary)
     ++files;
   }
   EXPECT_EQ(files, 3u);
-  EXPECT_EQ(readText(dir / "x.json.tmp"), "mine\n");
+  EXPECT_EQ(pcl_rast_test::readFile(dir / "x.json.tmp"), "mine\n");
   // A folder that does not exist: error naming the path, nothing left behind.
   const auto bad = (dir / "no_such_dir" / "poses.txt").string();
   EXPECT_NE(errorOf([&] { writeKittiPoses(bad, randomPoses(1, 4)); }).find("no_such_dir"),
