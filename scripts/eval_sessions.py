@@ -22,7 +22,7 @@ farther than 20 m from every one.
 
   scripts/eval_sessions.py [-b BUILD] [-o OUT] [-q SEQ] [-m MAP_LAST] [-r SEED]
                            [-n COLD_STARTS] [-l LAST] [--keep] [--no-merge]
-                           [--localize-args ARGS]
+                           [--sim-args ARGS] [--localize-args ARGS]
 """
 import argparse
 import csv
@@ -238,6 +238,9 @@ def main():
     ap.add_argument("--keep", action="store_true", help="keep the simulated scans")
     ap.add_argument("--no-merge", action="store_true",
                     help="skip the multi-session merge (the longest step)")
+    ap.add_argument("--sim-args", default="",
+                    help="extra arguments of pcl_rast_simulate, e.g. '-elevation-bias 0' "
+                         "(a diagnostic: the realistic world is the default)")
     ap.add_argument("--localize-args", default="",
                     help="extra arguments of every pcl_rast_localize run, e.g. "
                          "'-place-min-inliers 30'")
@@ -251,6 +254,8 @@ def main():
                 % (a.seed, " (a TUNING seed: do not report)" if a.seed < 100 else ""))
     print("eval_sessions (simulated): KITTI %s, first drive frames 0-%d, second drive the "
           "rest; %s" % (a.seq, a.map_last, settings), flush=True)
+    if a.sim_args:
+        print("pcl_rast_simulate with %s" % a.sim_args, flush=True)
     if a.localize_args:
         print("pcl_rast_localize with %s" % a.localize_args, flush=True)
 
@@ -259,7 +264,8 @@ def main():
         rc, s = run([os.path.join(tools, "pcl_rast_simulate"), "-traj", gt_path, "-output", sim,
                      "-seed", str(a.seed), "-last", str(a.last), "-raw-sweep", "-moving-cars", "-traffic", "realistic",
                      "-imperfections", "-format", "pcd", "-scene", "mixed", "-rough-ground",
-                     "-porous-vegetation", "-threads", "2"], os.path.join(out, "simulate.log"))
+                     "-porous-vegetation", "-threads", "2"] + a.sim_args.split(),
+                    os.path.join(out, "simulate.log"))
         if rc != 0:
             sys.exit("pcl_rast_simulate failed: see %s/simulate.log" % out)
         print("simulated in %.0f s" % s, flush=True)

@@ -22,9 +22,10 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
-#include <pcl/simulation/lidar_simulator.h>
 #include <pcl/io/pose_io.h>
+#include <pcl/simulation/lidar_simulator.h>
 #include <stdexcept>
 #include <string>
 
@@ -45,6 +46,8 @@ run(int argc, char** argv)
   std::string traffic = pcl::rast::toString(params.world.traffic.mode);
   bool raw_sweep = params.raw_sweep;
   bool imperfections = params.imperfections;
+  double elevation_bias_deg =
+      params.imperfection_params.elevation_bias_std_rad * 180.0 / M_PI;
   std::string scene = pcl::rast::toString(params.world.scene);
   bool rough_ground = params.world.rough_ground;
   bool porous_vegetation = params.world.porous_vegetation;
@@ -109,6 +112,11 @@ run(int argc, char** argv)
                  "outliers, mixed pixels at depth edges, intensity noise (fixed by "
                  "-seed)",
                  &imperfections);
+  args.addDouble("elevation-bias",
+                 "with -imperfections: each beam's elevation calibration error, 1 "
+                 "sigma [deg] (0: calibrated; the rest of the world and its noise stay "
+                 "the same)",
+                 &elevation_bias_deg);
   args.addChoice("scene",
                  "scene type of the world, or mixed: stretches of 150-500 m of "
                  "different types along the path (drawn from -seed)",
@@ -150,6 +158,12 @@ run(int argc, char** argv)
   params.world.traffic.mode = pcl::rast::trafficModeFromString(traffic);
   params.raw_sweep = raw_sweep;
   params.imperfections = imperfections;
+  if (args.given("elevation-bias") && !imperfections)
+    throw std::invalid_argument("-elevation-bias needs -imperfections");
+  if (!(elevation_bias_deg >= 0.0 && elevation_bias_deg <= 0.5))
+    throw std::invalid_argument("-elevation-bias must be in [0, 0.5] deg, got " +
+                                std::to_string(elevation_bias_deg));
+  params.imperfection_params.elevation_bias_std_rad = elevation_bias_deg * M_PI / 180.0;
   params.world.mixed_scenes = scene == "mixed";
   if (scene != "mixed")
     params.world.scene = pcl::rast::sceneTypeFromString(scene);

@@ -195,6 +195,24 @@ TEST_F(SimulateTool, ImperfectionsSwitch)
   EXPECT_GT(bytes("clean").size(), 0u);
   EXPECT_NE(bytes("clean"), bytes("a"));
   EXPECT_EQ(bytes("a"), bytes("b"));
+
+  // -elevation-bias sets the per-beam elevation error alone: its default is what
+  // -imperfections gives, 0 changes the scans.
+  ASSERT_EQ(runSimulate(base + out("d") + " -imperfections -elevation-bias 0.05", log_),
+            0);
+  ASSERT_EQ(runSimulate(base + out("c") + " -imperfections -elevation-bias 0", log_), 0);
+  EXPECT_EQ(bytes("a"), bytes("d"));
+  EXPECT_NE(bytes("a"), bytes("c"));
+  EXPECT_NE(bytes("clean"), bytes("c"));
+  // Without -imperfections, or out of range: exit 1, naming the flag.
+  for (const std::string bad : {" -elevation-bias 0.1",
+                                " -imperfections -elevation-bias 0.7",
+                                " -imperfections -elevation-bias -0.1"}) {
+    ASSERT_EQ(runSimulate(base + out("bad") + bad, log_), 1) << bad;
+    std::ifstream in(log_);
+    const std::string text((std::istreambuf_iterator<char>(in)), {});
+    EXPECT_NE(text.find("-elevation-bias"), std::string::npos) << text;
+  }
 }
 
 TEST_F(SimulateTool, SceneAndWorldSwitches)
