@@ -7,7 +7,7 @@
 #
 #   sudo scripts/check_fresh_debian.sh [FOLDER]   (default /tmp/pcl_rast_fresh_debian)
 #
-# Needs root (debootstrap, chroot, bind mounts) and Debian's package mirror, ~5 GB of
+# Needs root (debootstrap, chroot, bind mounts) and Debian's package mirror, ~7 GB of
 # disk and about 20 minutes on two cores: the base system, the packages, the build, the
 # whole test suite and the demo. FOLDER is made anew; it is left behind for a look at
 # its logs (FOLDER/root/work/main/build) and removed by the next run.
