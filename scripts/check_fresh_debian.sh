@@ -31,9 +31,15 @@ unmount() {
     umount "$chroot_dir/${mounts[i]}" 2> /dev/null || true
   done
 }
-trap unmount EXIT
 
-if [ -d "$chroot_dir" ]; then
+# Only a folder this script made (it leaves a marker) is removed; any other that is
+# not empty is refused, so that a wrong argument cannot delete anything else.
+marker="$folder/.pcl_rast_fresh_debian"
+if [ -e "$folder" ] && [ -n "$(ls -A "$folder" 2> /dev/null)" ]; then
+  if [ ! -f "$marker" ]; then
+    echo "check_fresh_debian: '$folder' is not empty and was not made by this script" >&2
+    exit 2
+  fi
   unmount
   if grep -q " $chroot_dir/" /proc/mounts; then
     echo "check_fresh_debian: something is still mounted under $chroot_dir" >&2
@@ -42,6 +48,8 @@ if [ -d "$chroot_dir" ]; then
   rm -rf "$folder"
 fi
 mkdir -p "$folder"
+touch "$marker"
+trap unmount EXIT
 
 start=$(date +%s)
 echo "check_fresh_debian: debootstrap bookworm (minbase) into $chroot_dir"
