@@ -393,6 +393,17 @@ struct MapLocalization::Impl
     return dt > 0.0 && std::isfinite(dt) ? dt : 0.0;
   }
 
+  /// A new frame, scanned or skipped, counted: its record with the index and time.
+  LocalizationFrame beginFrame(double timestamp_s, std::size_t frame_index)
+  {
+    started = true;
+    ++frames;
+    LocalizationFrame f;
+    f.frame_index = frame_index;
+    f.timestamp_s = timestamp_s;
+    return f;
+  }
+
   /// The scan motion-compensated with this frame's motion \a step over \a dt seconds,
   /// as the odometry compensates what it tracks: point times from the scan
   /// (\a point_times_s) or, with DeskewMode::kOn, from the azimuth. The scan itself
@@ -1064,11 +1075,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
 {
   const pcl::StopWatch watch;
   Impl& m = *this;
-  m.started = true;
-  ++m.frames;
-  LocalizationFrame f;
-  f.frame_index = frame_index;
-  f.timestamp_s = timestamp_s;
+  LocalizationFrame f = m.beginFrame(timestamp_s, frame_index);
   const double dt = m.interval(timestamp_s);
   const std::optional<Pose3d> velocity_step = m.velocityStep(dt);
   // The source of this scan the look-ahead prepared; the next scan's is prepared
@@ -1304,11 +1311,7 @@ MapLocalization::addSkippedScan(double timestamp_s,
                                 const std::string& reason)
 {
   Impl& m = *impl_;
-  m.started = true;
-  ++m.frames;
-  LocalizationFrame f;
-  f.frame_index = frame_index;
-  f.timestamp_s = timestamp_s;
+  LocalizationFrame f = m.beginFrame(timestamp_s, frame_index);
   // The odometry predicts the skipped frame; after resting it has nothing to predict
   // from, and the map's velocity does.
   const double dt = m.interval(timestamp_s);
