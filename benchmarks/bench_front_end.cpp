@@ -323,6 +323,18 @@ BENCHMARK(BM_ProcessFrameDensePoints)
     ->Unit(benchmark::kMillisecond)
     ->Iterations(210);
 
+/// With nearer points replacing the farthest of a full local-map voxel (-map-nearer
+/// 0.5) instead of the first points kept (0, KISS-ICP's rule, the default): the
+/// replacement's cost, side by side.
+void
+BM_ProcessFrameMapNearerPoints(benchmark::State& state)
+{
+  rast::OdometryParams params;
+  params.dense.map_nearer_ratio = 0.5;
+  processFrames(state, params);
+}
+BENCHMARK(BM_ProcessFrameMapNearerPoints)->Unit(benchmark::kMillisecond)->Iterations(210);
+
 /// Without the vehicle-dynamics prior (-no-vehicle-prior): its cost, side by side.
 void
 BM_ProcessFrameNoVehiclePrior(benchmark::State& state)

@@ -102,6 +102,11 @@ run(int argc, char** argv)
   args.addInt("young-map-scans",
               "every tracked scan joins the local map while it holds fewer (1: key-frames only)",
               &params.dense.young_map_scans);
+  args.addDouble("map-nearer",
+                 "a full local-map voxel takes a point seen from less than this fraction "
+                 "of its farthest point's range in that point's place (0: the first "
+                 "points stay, as in KISS-ICP; doc/odometry.md)",
+                 &params.dense.map_nearer_ratio);
   args.addDouble("degeneracy-support",
                  "tunnels, corridors: a direction needs this many points on surfaces "
                  "facing along it, else the prior keeps it (0: off; doc/odometry.md)",
@@ -149,6 +154,8 @@ run(int argc, char** argv)
       p.dense.max_source_points = cli_params.dense.max_source_points;
     if (args.given("young-map-scans"))
       p.dense.young_map_scans = cli_params.dense.young_map_scans;
+    if (args.given("map-nearer"))
+      p.dense.map_nearer_ratio = cli_params.dense.map_nearer_ratio;
     if (args.given("degeneracy-support"))
       p.dense.degeneracy_min_support = cli_params.dense.degeneracy_min_support;
     if (args.given("visibility-margin"))

@@ -261,6 +261,7 @@ run(int argc, char** argv)
   bool no_revisit_culling = !defaults.loop_closing.cull_revisits;
   int young_map_scans = defaults.odometry.dense.young_map_scans;
   double degeneracy_support = defaults.odometry.dense.degeneracy_min_support;
+  double map_nearer = defaults.odometry.dense.map_nearer_ratio;
   double visibility_margin = defaults.odometry.visibility_margin_m;
   bool no_vehicle_prior = false;
   bool no_ba = false;
@@ -315,6 +316,12 @@ run(int argc, char** argv)
                 "tracking: every scan joins the local map while it holds fewer (1: key-frames "
                 "only; see doc/odometry.md)",
                 &young_map_scans);
+  parser.addDouble(
+      "map-nearer",
+      "tracking: a full local-map voxel takes a point seen from less than "
+      "this fraction of its farthest point's range in that point's place (0: "
+      "the first points stay, as in KISS-ICP; see doc/odometry.md)",
+      &map_nearer);
   parser.addDouble("degeneracy-support",
                    "tracking in tunnels, corridors: a direction needs this many points on "
                    "surfaces facing along it, else the prior keeps it (0: off; "
@@ -352,6 +359,9 @@ run(int argc, char** argv)
   if (young_map_scans < 1)
     throw std::invalid_argument("-young-map-scans must be >= 1, got " +
                                 std::to_string(young_map_scans));
+  if (!(map_nearer >= 0.0 && map_nearer <= 1.0))
+    throw std::invalid_argument("-map-nearer must be in [0, 1], got " +
+                                std::to_string(map_nearer));
   if (!(degeneracy_support >= 0.0) || !std::isfinite(degeneracy_support))
     throw std::invalid_argument("-degeneracy-support must be finite and >= 0, got " +
                                 std::to_string(degeneracy_support));
@@ -444,6 +454,8 @@ run(int argc, char** argv)
             << "; " << deskew_timing << ")\n";
   if (parser.given("young-map-scans"))
     params.odometry.dense.young_map_scans = young_map_scans;
+  if (parser.given("map-nearer"))
+    params.odometry.dense.map_nearer_ratio = map_nearer;
   if (parser.given("degeneracy-support"))
     params.odometry.dense.degeneracy_min_support = degeneracy_support;
   if (parser.given("visibility-margin"))
@@ -804,6 +816,7 @@ run(int argc, char** argv)
       {"loop_closure", params.loop_closing.enable},
       {"revisit_culling", params.loop_closing.cull_revisits},
       {"young_map_scans", params.odometry.dense.young_map_scans},
+      {"map_nearer", params.odometry.dense.map_nearer_ratio},
       {"degeneracy_support", params.odometry.dense.degeneracy_min_support},
       {"visibility_margin_m", params.odometry.visibility_margin_m},
       {"lookahead", !no_lookahead},

@@ -77,6 +77,9 @@ DenseTrackingParams::isValid(std::string* why) const
     reason = "map_voxel_size_m must be > 0";
   else if (map_max_points_per_voxel < 5)
     reason = "map_max_points_per_voxel must be >= 5 (a plane needs 5 points)";
+  else if (!(map_nearer_ratio >= 0.0 && map_nearer_ratio <= 1.0))
+    reason =
+        "map_nearer_ratio must be in [0, 1], got " + std::to_string(map_nearer_ratio);
   else if (!finitePositive(map_radius_m))
     reason = "map_radius_m must be > 0";
   else if (!(max_surface_variation > 0.0 && max_surface_variation <= 1.0 / 3.0))

@@ -130,6 +130,8 @@ VoxelPlaneMap::insert(const Points3f& points_world, const Eigen::Vector3f& cente
 {
   const std::size_t max_points =
       static_cast<std::size_t>(params_.map_max_points_per_voxel);
+  const float nearer_sq =
+      static_cast<float>(params_.map_nearer_ratio * params_.map_nearer_ratio);
   showHidden();
   std::vector<int> touched;
   for (const auto& p : points_world) {
@@ -137,14 +139,31 @@ VoxelPlaneMap::insert(const Points3f& points_world, const Eigen::Vector3f& cente
     if (inserted)
       voxels_.emplace_back();
     Voxel& voxel = voxels_[v];
-    if (voxel.points.size() >= max_points)
+    if (voxel.points.size() >= max_points) {
+      // Full: the first points stay, unless a point seen from much nearer takes the
+      // place of the one seen from farthest.
+      if (nearer_sq <= 0.0f)
+        continue;
+      const float range_sq = (p - center).squaredNorm();
+      const auto far = std::max_element(voxel.ranges_sq.begin(), voxel.ranges_sq.end());
+      if (!(range_sq < nearer_sq * *far))
+        continue;
+      const std::size_t i = static_cast<std::size_t>(far - voxel.ranges_sq.begin());
+      voxel.points[i] = p;
+      voxel.ranges_sq[i] = range_sq;
+      touched.push_back(v);
       continue;
+    }
     if (voxel.points.empty()) { // new, or dropped before and now back
       voxel.points.reserve(max_points);
+      if (nearer_sq > 0.0f)
+        voxel.ranges_sq.reserve(max_points);
       if (!inserted)
         --num_dropped_;
     }
     voxel.points.push_back(p);
+    if (nearer_sq > 0.0f) // only the replacement reads them
+      voxel.ranges_sq.push_back((p - center).squaredNorm());
     touched.push_back(v);
   }
   std::sort(touched.begin(), touched.end());
@@ -158,6 +177,7 @@ VoxelPlaneMap::insert(const Points3f& points_world, const Eigen::Vector3f& cente
   for (Voxel& voxel : voxels_)
     if (!voxel.points.empty() && (voxel.points.front() - center).squaredNorm() > radius_sq) {
       Points3f().swap(voxel.points);
+      std::vector<float>().swap(voxel.ranges_sq);
       voxel.planar = false;
       ++num_dropped_;
     }

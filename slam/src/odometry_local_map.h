@@ -132,6 +132,8 @@ private:
   struct Voxel
   {
     Points3f points;
+    /// Squared range of each point from the sensor that saw it (map_nearer_ratio > 0)
+    std::vector<float> ranges_sq;
     Eigen::Vector3f centroid = Eigen::Vector3f::Zero();
     Eigen::Vector3f normal = Eigen::Vector3f::Zero();
     bool planar = false;

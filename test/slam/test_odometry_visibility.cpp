@@ -1,7 +1,7 @@
 /// Moving objects in the odometry's dense step: a scan's visibility image tells where
 /// it saw through, the local map hides the voxels it sees through (what moved out of
 /// them), and in simulated traffic the odometry hides what the cars left while a
-/// static world keeps its map.
+/// static world keeps its map. Also how the map's voxels keep their points.
 
 #include "../../slam/src/odometry_local_map.h"
 
@@ -13,6 +13,7 @@
 #include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/odometry.h>
 #include <random>
+#include <string>
 #include <vector>
 
 // This file's names stay its own: a test program compiles several test files as
@@ -97,6 +98,51 @@ TEST(VoxelPlaneMap, HidesWhatTheScanSeesThroughUntilTheNextCall)
   EXPECT_TRUE(map.plane(truck, centroid, normal));
   // A margin larger than the 20 m the scan saw past the truck hides nothing.
   EXPECT_EQ(map.hideSeenThrough(&image, Eigen::Isometry3f::Identity(), 40.0f, 25.0f), 0);
+}
+
+/// A full map voxel takes points seen from much nearer in place of those it saw from
+/// farthest (DenseTrackingParams::map_nearer_ratio): a level patch first seen from 40 m
+/// with a height error, then from 4 m without, gives the near patch's plane; points from
+/// a range not below the ratio, or the ratio 0 (KISS-ICP's first points), leave it.
+TEST(VoxelPlaneMap, NearerPointsReplaceTheFarthestOfAFullVoxel)
+{
+  // 25 points of a level patch inside the voxel [0, 1)^3 at height z.
+  const auto patch = [](float z) {
+    pcl::PointCloud<pcl::PointXYZI> cloud;
+    for (int i = 0; i < 5; ++i)
+      for (int j = 0; j < 5; ++j) {
+        pcl::PointXYZI p;
+        p.x = 0.1f + 0.2f * static_cast<float>(i);
+        p.y = 0.1f + 0.2f * static_cast<float>(j);
+        p.z = z;
+        cloud.push_back(p);
+      }
+    return toPoints(cloud);
+  };
+  const Eigen::Vector3f far_sensor(40.5f, 0.5f, 0.0f), near_sensor(4.5f, 0.5f, 0.0f),
+      middle_sensor(30.5f, 0.5f, 0.0f);
+  const auto heightAfter = [&](double ratio, const Eigen::Vector3f& second_sensor) {
+    pcl::rast::DenseTrackingParams params;
+    params.map_nearer_ratio = ratio;
+    VoxelPlaneMap map(params);
+    map.insert(patch(0.56f), far_sensor);
+    map.insert(patch(0.44f), second_sensor);
+    Eigen::Vector3f centroid, normal;
+    EXPECT_TRUE(map.plane({0.5f, 0.5f, 0.5f}, centroid, normal));
+    EXPECT_GT(std::abs(normal.z()), 0.99f);
+    return centroid.z();
+  };
+  EXPECT_NEAR(heightAfter(0.5, near_sensor), 0.44f, 1e-4f) << "all 20 replaced";
+  EXPECT_NEAR(heightAfter(0.0, near_sensor), 0.56f, 1e-4f) << "the first points stay";
+  EXPECT_NEAR(heightAfter(0.5, middle_sensor), 0.56f, 1e-4f)
+      << "30 m is not < 0.5 * 40 m";
+  EXPECT_NEAR(heightAfter(0.8, middle_sensor), 0.44f, 1e-4f);
+
+  pcl::rast::DenseTrackingParams bad;
+  bad.map_nearer_ratio = 1.5;
+  std::string why;
+  EXPECT_FALSE(bad.isValid(&why));
+  EXPECT_NE(why.find("map_nearer_ratio"), std::string::npos) << why;
 }
 
 /// The dense step keeps each source point's last plane lookup for its next query

@@ -162,6 +162,13 @@ TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
             std::string::npos)
       << readFile(log_);
   EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + dir_.string() +
+                        "/o' -map-nearer 1.5",
+                    log_),
+            1);
+  EXPECT_NE(readFile(log_).find("-map-nearer must be in [0, 1], got 1.5"),
+            std::string::npos)
+      << readFile(log_);
+  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + dir_.string() +
                         "/o' -visibility-margin -0.5",
                     log_),
             1);
