@@ -149,32 +149,21 @@ TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
                         "/o' -stride 0",
                     log_),
             1);
-  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + dir_.string() +
-                        "/o' -young-map-scans 0",
-                    log_),
-            1);
-  EXPECT_NE(readFile(log_).find("-young-map-scans must be >= 1, got 0"), std::string::npos);
-  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + dir_.string() +
-                        "/o' -degeneracy-support -2",
-                    log_),
-            1);
-  EXPECT_NE(readFile(log_).find("-degeneracy-support must be finite and >= 0, got -2"),
-            std::string::npos)
-      << readFile(log_);
-  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + dir_.string() +
-                        "/o' -map-nearer 1.5",
-                    log_),
-            1);
-  EXPECT_NE(readFile(log_).find("-map-nearer must be in [0, 1], got 1.5"),
-            std::string::npos)
-      << readFile(log_);
-  EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" + dir_.string() +
-                        "/o' -visibility-margin -0.5",
-                    log_),
-            1);
-  EXPECT_NE(readFile(log_).find("-visibility-margin must be finite and >= 0, got -0.5"),
-            std::string::npos)
-      << readFile(log_);
+  // A flag's bad value: exit 1, naming the flag and the value.
+  const auto rejects = [&](const std::string& flag, const std::string& message) {
+    EXPECT_EQ(runTool("-input '" + sequenceDir().string() + "' -output '" +
+                          dir_.string() + "/o' " + flag,
+                      log_),
+              1)
+        << flag;
+    EXPECT_NE(readFile(log_).find(message), std::string::npos) << readFile(log_);
+  };
+  rejects("-young-map-scans 0", "-young-map-scans must be >= 1, got 0");
+  rejects("-degeneracy-support -2",
+          "-degeneracy-support must be finite and >= 0, got -2");
+  rejects("-map-nearer 1.5", "-map-nearer must be in [0, 1], got 1.5");
+  rejects("-visibility-margin -0.5",
+          "-visibility-margin must be finite and >= 0, got -0.5");
   EXPECT_FALSE(std::filesystem::exists(dir_ / "o" / "summary.json")) << "no work before the check";
   EXPECT_EQ(runTool("-h", log_), 0);
   EXPECT_NE(readFile(log_).find("-map-leaf"), std::string::npos);
