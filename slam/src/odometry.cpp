@@ -188,6 +188,10 @@ OdometryParams::isValid(std::string* why) const
              "finite, got " +
              std::to_string(prior_gate_accel_mps2) + ", " +
              std::to_string(prior_gate_angular_accel_dps2);
+  else if (!(prior_gate_vertical_accel_mps2 >= 0.0 &&
+             std::isfinite(prior_gate_vertical_accel_mps2)))
+    reason = "prior_gate_vertical_accel_mps2 must be >= 0 and finite, got " +
+             std::to_string(prior_gate_vertical_accel_mps2);
   else if (!(indistinct_residual_m >= 0.0 && std::isfinite(indistinct_residual_m)))
     reason = "indistinct_residual_m must be >= 0 and finite, got " +
              std::to_string(indistinct_residual_m);

@@ -376,6 +376,11 @@ struct Odometry::Impl
     bool dynamics; ///< shrunk: beyond it the motion is implausible, not just large
   };
   PriorGate priorGate(const Frame& frame) const;
+  /// After constant-velocity frames (velocity_age_frames >= 1), outside
+  /// prior_gate_vertical_accel_mps2's gate above or below the frame's prior: the prior's
+  /// height, roll and pitch replace the result's, its x, y and yaw stay, and it is
+  /// flagged degraded.
+  void keepPriorHeight(const Frame& frame, OdometryFrameResult& result) const;
   /// Within \a gate of the frame's constant-velocity prior.
   static bool
   withinGate(const Frame& frame, const Pose3d& T_world_lidar, const PriorGate& gate);
@@ -451,7 +456,7 @@ struct Odometry::Impl
                 const odometry_detail::PointTimes& times,
                 const pcl::Indices& indices,
                 const Twist& xi) const;
-  /// Step 5c of track: the scan that started the map was used as it was (no motion
+  /// Step 5d of track: the scan that started the map was used as it was (no motion
   /// before it). Once the next frame's motion is known, the local map is rebuilt from
   /// that scan compensated with it (the key-frame's own stored cloud stays as it was).
   void rebuildMapFromFirstScan(OdometryFrameResult& result);

@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <pcl/common/io.h>
 #include <pcl/registration/hamming_matching.h>
 #include <utility>
@@ -96,8 +97,7 @@ Odometry::Impl::track(Frame& frame, OdometryFrameResult result)
     searchHypotheses(frame, feature_track, result);
   result.timings.refine_ms += watch.getTime(); // (+ the source points, prepare)
 
-  // 5b. Second pass of the motion compensation with the estimated motion; 5c. the local
-  //     map rebuilt from the first scan, compensated, once its motion is known.
+  // 5b. Second pass of the motion compensation with the estimated motion.
   if (frame.xi_sweep && result.refined && !frame.source_indices.empty())
     secondDeskewPass(frame.input,
                      *frame.times,
@@ -106,6 +106,13 @@ Odometry::Impl::track(Frame& frame, OdometryFrameResult result)
                      frame.T_motion_deskew,
                      result,
                      *frame.xi_sweep);
+  // 5c. Not from strong features: a height beyond the vehicle's vertical motion is a
+  //     slide (checked after the second pass, which refines without the prior).
+  if (!feature_track.ok || static_cast<int>(feature_track.ransac.inlier_indices.size()) <
+                               params.strong_feature_inliers)
+    keepPriorHeight(frame, result);
+  // 5d. The local map rebuilt from the first scan, compensated, once its motion is
+  //     known.
   if (first_scan)
     rebuildMapFromFirstScan(result);
 
@@ -432,6 +439,36 @@ Odometry::Impl::priorGate(const Frame& frame) const
     gate.dynamics = true;
   }
   return gate;
+}
+
+void
+Odometry::Impl::keepPriorHeight(const Frame& frame, OdometryFrameResult& result) const
+{
+  // Top-down features say nothing about the height, and where the scan holds it only
+  // weakly (steep ground, few planes) the dense step can slide up or down by
+  // decimetres; after constant-velocity frames nothing else says where the height
+  // went. Only then: with a velocity measured the frame before, the scan's height
+  // stands (a prior held against it would carry its own climb on, frame after frame,
+  // where the road's grade changes: doc/odometry.md).
+  if (velocity_age_frames < 1 || !(params.prior_gate_vertical_accel_mps2 > 0.0))
+    return;
+  const double gate = params.prior_gate_vertical_accel_mps2 * frame.dt * frame.dt *
+                      (1.0 + velocity_age_frames);
+  const double dz =
+      (frame.T_world_prior.inverse() * result.T_world_lidar).translation().z();
+  if (std::abs(dz) <= gate)
+    return;
+  result.T_world_lidar =
+      planarFromFeatures(T_world_last, result.T_world_lidar, frame.T_world_prior);
+  result.degraded = true;
+  char text[160];
+  std::snprintf(text,
+                sizeof(text),
+                "; %+.2f m in height from a stale prior, beyond a vehicle's vertical "
+                "motion (%.2f m): the prior's height, roll and pitch kept",
+                dz,
+                gate);
+  result.message += text;
 }
 
 bool

@@ -104,6 +104,7 @@ disableVehiclePrior(OdometryParams& params)
 {
   params.prior_gate_accel_mps2 = 0.0;
   params.prior_gate_angular_accel_dps2 = 0.0;
+  params.prior_gate_vertical_accel_mps2 = 0.0;
   params.dense_prior_ratio = 0.0;
 }
 

@@ -208,6 +208,9 @@ TEST(OdometryParams, DefaultsAreValidAndBadValuesAreRejected)
   params.prior_gate_angular_accel_dps2 = std::numeric_limits<double>::infinity();
   expectInvalid(params, "prior_gate_angular_accel_dps2");
   params = rast::OdometryParams();
+  params.prior_gate_vertical_accel_mps2 = -2.0;
+  expectInvalid(params, "prior_gate_vertical_accel_mps2 must be >= 0 and finite, got -2");
+  params = rast::OdometryParams();
   params.dense_prior_ratio = 1.0;
   expectInvalid(params, "dense_prior_ratio");
   params = rast::OdometryParams();

@@ -1,16 +1,22 @@
 /// The odometry in traffic and degenerate scenes (simulated): an HDL-64 drives, brakes
 /// to a stop at a light, stands while cars stop beside it, pull away and cross ahead,
 /// then drives on. The standing ego must not be moved by the traffic, and the
-/// stop-and-go must not break the constant-velocity prior. And a drive at 20 m/s into
-/// a tunnel, whose smooth walls hardly tell the motion along it, must keep its speed.
+/// stop-and-go must not break the constant-velocity prior. A drive at 20 m/s into a
+/// tunnel, whose smooth walls hardly tell the motion along it, must keep its speed. And
+/// KITTI 08's simulated climb must keep its height.
+
+#include "test_data.h"
 
 #include <algorithm>
+#include <filesystem>
 #include <gtest/gtest.h>
 #include <iostream>
 #include <memory>
+#include <pcl/evaluation/trajectory_evaluation.h>
+#include <pcl/io/pose_io.h>
+#include <pcl/io/sequence_reader.h>
 #include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/odometry.h>
-#include <pcl/evaluation/trajectory_evaluation.h>
 #include <vector>
 
 // This file's names stay its own: a test program compiles several test files as
@@ -146,6 +152,71 @@ TEST(OdometryTraffic, ATunnelAtSpeedKeepsTheVehiclesVelocity)
   // The comparison run is a check too: the prior is what holds the tunnel.
   EXPECT_GT(drift_without, 2.0 * drift)
       << "the vehicle prior no longer makes the difference";
+}
+
+/// The largest error of a frame-to-frame motion [m].
+double
+worstStep(const PoseVector& estimate, const LidarSimulator& sim)
+{
+  const Pose3d T0_inv = sim.sensorPose(0).inverse();
+  double worst = 0.0;
+  for (std::size_t i = 1; i < estimate.size(); ++i) {
+    const Pose3d truth =
+        (T0_inv * sim.sensorPose(i - 1)).inverse() * T0_inv * sim.sensorPose(i);
+    const Pose3d estimated = estimate[i - 1].inverse() * estimate[i];
+    worst = std::max(worst, (truth.inverse() * estimated).translation().norm());
+  }
+  return worst;
+}
+
+TEST(OdometryTraffic, ASteepClimbKeepsItsHeight)
+{
+  // The start of KITTI 08 as its ground truth has it: the car slows from 8 m/s to a
+  // crawl while it climbs 0.185 m a frame, so the ground the simulator builds along it
+  // steepens to a ramp the scan holds the height on poorly. The world of
+  // `pcl_rast_simulate -traj 08.txt -seed 42 -raw-sweep -moving-cars -traffic
+  // realistic -imperfections -scene mixed -rough-ground -porous-vegetation` (a tuning
+  // seed), its first 130 frames: at frame 99 the climb stops from one frame to the next,
+  // where a gate that held the prior's height on fresh velocities too kept climbing
+  // (0.38 m off a frame).
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  const Trajectory gt = readTrajectory((data / "kitti-gt-poses" / "08.txt").string());
+  LidarSimulatorParams params = streetParams(42);
+  params.world.mixed_scenes = true;
+  params.world.porous_vegetation = true;
+  LidarSimulator sim(params, cameraToLidarPoses(gt.poses, kittiAxisChangeCamLidar()));
+  // Through the files, as pcl_rast_odometry reads them (time field since the sweep's
+  // start): the outcome of such a drive hangs on the last bits of the point times.
+  const std::filesystem::path dir = ::pcl_rast_test::makeTempDir("steep_climb");
+  const std::size_t frames = 130;
+  sim.writeSequence(dir.string(), ScanFormat::kPcd, 0, frames - 1, 1);
+  const SequenceReader reader(dir.string());
+  std::vector<ScanFrame> scans;
+  for (std::size_t i = 0; i < frames; ++i)
+    scans.push_back(reader.read(i));
+  std::filesystem::remove_all(dir);
+  auto run = [&](const OdometryParams& odometry_params) {
+    Odometry odometry(odometry_params);
+    PoseVector estimate;
+    for (std::size_t i = 0; i < frames; ++i)
+      estimate.push_back(
+          odometry
+              .processFrame(
+                  scans[i].cloud, scans[i].timestamp_s, i, scans[i].point_times_s)
+              .T_world_lidar);
+    return worstStep(estimate, sim);
+  };
+  const double worst = run(OdometryParams());
+  OdometryParams without;
+  without.prior_gate_vertical_accel_mps2 = 0.0;
+  const double worst_without = run(without);
+  std::cout << "steep climb: largest per-frame error " << worst
+            << " m; without the vertical gate " << worst_without << " m\n";
+  // Measured: 0.085 m; without the gate 0.39 m (after a constant-velocity frame a dense
+  // fallback slid 0.37 m down, and weak features followed for three frames).
+  EXPECT_LT(worst, 0.25);
+  EXPECT_GT(worst_without, 1.5 * worst)
+      << "the vertical gate no longer makes the difference";
 }
 
 } // namespace

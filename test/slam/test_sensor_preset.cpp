@@ -58,6 +58,10 @@ TEST(SensorPreset, PresetsChangeWhatTheySay)
   applySensorPreset(SensorPreset::kOs0_128, p);
   EXPECT_TRUE(p.ground.level_cloud);
   EXPECT_GT(p.ground.max_tilt_deg, defaults.ground.max_tilt_deg);
+  // Handheld: no vehicle dynamics, the height gate included (a walker steps up a stair).
+  EXPECT_GT(defaults.prior_gate_vertical_accel_mps2, 0.0);
+  EXPECT_EQ(p.prior_gate_vertical_accel_mps2, 0.0);
+  EXPECT_EQ(p.prior_gate_accel_mps2, 0.0);
   EXPECT_TRUE(p.isValid());
   OdometryParams v;
   applySensorPreset(SensorPreset::kVlp16, v);
