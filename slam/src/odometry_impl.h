@@ -376,6 +376,13 @@ struct Odometry::Impl
     bool dynamics; ///< shrunk: beyond it the motion is implausible, not just large
   };
   PriorGate priorGate(const Frame& frame) const;
+  /// dt^2 (1 + k) for \a frame, a velocity measured k frames ago: times an acceleration,
+  /// how far the vehicle may have left that velocity by now (the gates above, and
+  /// keepPriorHeight's).
+  double velocityAgeDt2(const Frame& frame) const
+  {
+    return frame.dt * frame.dt * (1.0 + velocity_age_frames);
+  }
   /// After constant-velocity frames (velocity_age_frames >= 1), outside
   /// prior_gate_vertical_accel_mps2's gate above or below the frame's prior: the prior's
   /// height, roll and pitch replace the result's, its x, y and yaw stay, and it is

@@ -108,8 +108,8 @@ Odometry::Impl::track(Frame& frame, OdometryFrameResult result)
                      *frame.xi_sweep);
   // 5c. Not from strong features: a height beyond the vehicle's vertical motion is a
   //     slide (checked after the second pass, which refines without the prior).
-  if (!feature_track.ok || static_cast<int>(feature_track.ransac.inlier_indices.size()) <
-                               params.strong_feature_inliers)
+  if (!feature_track.ok ||
+      inliersOf(feature_track.ransac) < params.strong_feature_inliers)
     keepPriorHeight(frame, result);
   // 5d. The local map rebuilt from the first scan, compensated, once its motion is
   //     known.
@@ -427,7 +427,7 @@ Odometry::Impl::priorGate(const Frame& frame) const
   PriorGate gate{params.prior_gate_m, params.prior_gate_deg, false};
   if (velocity_age_frames < 0)
     return gate;
-  const double dt2 = frame.dt * frame.dt * (1.0 + velocity_age_frames);
+  const double dt2 = velocityAgeDt2(frame);
   if (params.prior_gate_accel_mps2 > 0.0 &&
       params.prior_gate_accel_mps2 * dt2 < gate.metres) {
     gate.metres = params.prior_gate_accel_mps2 * dt2;
@@ -452,8 +452,7 @@ Odometry::Impl::keepPriorHeight(const Frame& frame, OdometryFrameResult& result)
   // where the road's grade changes: doc/odometry.md).
   if (velocity_age_frames < 1 || !(params.prior_gate_vertical_accel_mps2 > 0.0))
     return;
-  const double gate = params.prior_gate_vertical_accel_mps2 * frame.dt * frame.dt *
-                      (1.0 + velocity_age_frames);
+  const double gate = params.prior_gate_vertical_accel_mps2 * velocityAgeDt2(frame);
   const double dz =
       (frame.T_world_prior.inverse() * result.T_world_lidar).translation().z();
   if (std::abs(dz) <= gate)

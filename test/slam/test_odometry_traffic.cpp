@@ -42,6 +42,21 @@ streetParams(std::uint64_t seed)
   return params;
 }
 
+/// The largest error of a frame-to-frame motion [m].
+double
+worstStep(const PoseVector& estimate, const LidarSimulator& sim)
+{
+  const Pose3d T0_inv = sim.sensorPose(0).inverse();
+  double worst = 0.0;
+  for (std::size_t i = 1; i < estimate.size(); ++i) {
+    const Pose3d truth =
+        (T0_inv * sim.sensorPose(i - 1)).inverse() * T0_inv * sim.sensorPose(i);
+    const Pose3d estimated = estimate[i - 1].inverse() * estimate[i];
+    worst = std::max(worst, (truth.inverse() * estimated).translation().norm());
+  }
+  return worst;
+}
+
 TEST(OdometryTraffic, StandingEgoIsNotMovedByTrafficAndStopAndGoTracks)
 {
   PathParams path;
@@ -120,17 +135,10 @@ TEST(OdometryTraffic, ATunnelAtSpeedKeepsTheVehiclesVelocity)
       estimate.push_back(
           odometry.processFrame(clouds[i], sim.timestamp(i), i, times[i]).T_world_lidar);
     const Pose3d T0_inv = sim.sensorPose(0).inverse();
-    double worst = 0.0;
-    for (std::size_t i = 1; i < estimate.size(); ++i) {
-      const Pose3d truth = (T0_inv * sim.sensorPose(i - 1)).inverse() * T0_inv *
-                           sim.sensorPose(i);
-      const Pose3d estimated = estimate[i - 1].inverse() * estimate[i];
-      worst = std::max(worst, (truth.inverse() * estimated).translation().norm());
-    }
     drift_m = (estimate.back().translation() -
                (T0_inv * sim.sensorPose(clouds.size() - 1)).translation())
                   .norm();
-    return worst;
+    return worstStep(estimate, sim);
   };
   // On a dense step of 1000 source points (the default until session 36), where the
   // prior is what holds the tunnel. With 2000 the dense step holds it by itself: drift
@@ -152,21 +160,6 @@ TEST(OdometryTraffic, ATunnelAtSpeedKeepsTheVehiclesVelocity)
   // The comparison run is a check too: the prior is what holds the tunnel.
   EXPECT_GT(drift_without, 2.0 * drift)
       << "the vehicle prior no longer makes the difference";
-}
-
-/// The largest error of a frame-to-frame motion [m].
-double
-worstStep(const PoseVector& estimate, const LidarSimulator& sim)
-{
-  const Pose3d T0_inv = sim.sensorPose(0).inverse();
-  double worst = 0.0;
-  for (std::size_t i = 1; i < estimate.size(); ++i) {
-    const Pose3d truth =
-        (T0_inv * sim.sensorPose(i - 1)).inverse() * T0_inv * sim.sensorPose(i);
-    const Pose3d estimated = estimate[i - 1].inverse() * estimate[i];
-    worst = std::max(worst, (truth.inverse() * estimated).translation().norm());
-  }
-  return worst;
 }
 
 TEST(OdometryTraffic, ASteepClimbKeepsItsHeight)
