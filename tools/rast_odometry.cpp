@@ -26,6 +26,7 @@
 #include <filesystem>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <pcl/io/pose_io.h>
 #include <pcl/io/sequence_reader.h>
 #include <pcl/slam/odometry.h>
@@ -55,7 +56,7 @@ run(int argc, char** argv)
   int first = 0, last = -1, stride = 1;
   bool no_refine = false, no_lookahead = false, no_loose_rematch = false,
        level = params.ground.level_cloud;
-  bool no_vehicle_prior = false;
+  bool no_vehicle_prior = false, quiet = false;
   int max_features = params.orb.max_features;
   double min_range = params.min_range_m, max_range = params.max_range_m;
   double ratio = params.registration.matching.ratio;
@@ -126,6 +127,7 @@ run(int argc, char** argv)
       "key-frame saw through, by more than this are left out of the dense step "
       "(m, e.g. 1; 0: off, the default; doc/odometry.md)",
       &params.visibility_margin_m);
+  args.addSwitch("quiet", "no progress bar", &quiet);
   if (!args.parse(argc, argv))
     return kExitOk;
   installStopSignals(); // a stop before the first frame ends the run there
@@ -215,7 +217,9 @@ run(int argc, char** argv)
   std::size_t num_tracked = 0;
   std::size_t frames_degenerate = 0;
   DeskewTally tally;
-  ProgressBar bar("Odometry", reader.size());
+  std::optional<ProgressBar> bar;
+  if (!quiet)
+    bar.emplace("Odometry", reader.size());
   std::exception_ptr run_error; // ends the run; the frames before it are written
   nlohmann::json skipped = nlohmann::json::array(); // scans that could not be read
   std::size_t stopped_at = reader.size();
@@ -285,9 +289,11 @@ run(int argc, char** argv)
         << ',' << (r.extracted_ahead ? 1 : 0) << '\n';
     tally.add(r);
     frames_degenerate += r.dense_degenerate_directions > 0 ? 1 : 0;
-    bar.update(i + 1);
+    if (bar)
+      bar->update(i + 1);
   }
-  bar.finish();
+  if (bar)
+    bar->finish();
   const std::string error_message = run_error ? exceptionMessage(run_error) : "";
   if (run_error) {
     if (poses.empty())

@@ -94,6 +94,7 @@ TEST_F(OdometryTool, WritesPosesAndTimingForEveryFrame)
       << readAll(log_);
   const std::string log = readAll(log_);
   EXPECT_NE(log.find("000005.bin"), std::string::npos) << log;
+  EXPECT_NE(log.find("Odometry: 100%"), std::string::npos) << log; // the progress bar
 
   const auto kitti = pcl::rast::readTrajectory((out / "poses_kitti.txt").string());
   ASSERT_EQ(kitti.poses.size(), 12u);
@@ -141,8 +142,11 @@ TEST_F(OdometryTool, TheLookAheadChangesNoPose)
   const fs::path with = dir_ / "with", without = dir_ / "without";
   const std::string in = "-input '" + seq.string() + "' -output '";
   ASSERT_EQ(runOdometry(in + with.string() + "'", log_), 0) << readAll(log_);
-  ASSERT_EQ(runOdometry(in + without.string() + "' -no-lookahead", log_), 0)
+  ASSERT_EQ(runOdometry(in + without.string() + "' -no-lookahead -quiet", log_), 0)
       << readAll(log_);
+  // -quiet: no progress bar; the skipped scan is still reported.
+  EXPECT_EQ(readAll(log_).find("Odometry:"), std::string::npos) << readAll(log_);
+  EXPECT_NE(readAll(log_).find("000005.bin"), std::string::npos) << readAll(log_);
   EXPECT_EQ(readAll(with / "poses_kitti.txt"), readAll(without / "poses_kitti.txt"));
   EXPECT_TRUE(nlohmann::json::parse(readAll(with / "summary.json"))["params"]["lookahead"]
                   .get<bool>());

@@ -163,7 +163,7 @@ TEST_P(HostileSequence, FinishesWithEveryLyingScanSkippedAndNamed)
   ASSERT_GE(seq.lying.size(), ext == ".bin" ? 3u : 20u);
   const fs::path out = dir / "out";
   const fs::path log = dir / "log.txt";
-  std::string extra = tool == "pcl_rast_odometry" ? "" : " -quiet";
+  std::string extra = " -quiet";
   if (tool == "pcl_rast_slam")
     extra += " -threads off";
   if (tool == "pcl_rast_localize") {
