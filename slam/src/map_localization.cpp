@@ -914,7 +914,8 @@ struct MapLocalization::Impl
   /// The map's alignment of this scan from the recent tentative placement, moved by
   /// the odometry to the scan (odometry pose \a T_odom_lidar)
   /// (MapLocalizationParams::confirm_tentative_by_alignment); nullopt when there is
-  /// none to confirm or the map does not confirm it. \a how says what confirmed what.
+  /// none to confirm or the map does not confirm it. \a how says what confirmed what,
+  /// or why the map did not.
   std::optional<Alignment> confirmTentative(const std::function<const Source&()>& scan,
                                             const Pose3d& T_odom_lidar,
                                             std::string& how)
@@ -926,7 +927,11 @@ struct MapLocalization::Impl
                        (recent_placement->T_odom_lidar.inverse() * T_odom_lidar));
     std::string why;
     std::optional<Alignment> a = alignToMap(scan, moved, why);
-    if (a) {
+    const std::size_t ago = frames - recent_placement->frame;
+    if (!a) {
+      how = "the tentative placement " + std::to_string(ago) +
+            (ago == 1 ? " frame" : " frames") + " before not confirmed (" + why + ")";
+    } else {
       char text[160];
       std::snprintf(
           text,
@@ -934,7 +939,7 @@ struct MapLocalization::Impl
           "aligned to key-frame %u from the tentative placement %zu frames before "
           "(%d points paired, rmse %.3f m)",
           static_cast<unsigned>(a->keyframe),
-          frames - recent_placement->frame,
+          ago,
           a->correspondences,
           a->rmse_m);
       how = text;
@@ -1298,9 +1303,10 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
   else if (predicted)
     m.carryOn(f,
               *predicted,
-              "not confirmed (" + why + "); not placed (" + placement.message + ")");
+              "not confirmed (" + why + "); not placed (" + placement.message + ")" +
+                  (how.empty() ? "" : "; " + how));
   else
-    f.message = "not placed: " + placement.message;
+    f.message = "not placed: " + placement.message + (how.empty() ? "" : "; " + how);
   f.time_ms = watch.getTime();
   return f;
 }

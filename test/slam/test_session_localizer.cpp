@@ -417,6 +417,30 @@ TEST(MapLocalization, TentativePlacementsAreTakenWhenTwoScansAgree)
     }
   }
 
+  // A map alignment that cannot confirm (every source point must pair) and placements
+  // that cannot agree: nothing is taken, and each frame says why the confirmation
+  // failed.
+  {
+    MapLocalizationParams loc_params;
+    loc_params.alignment.min_overlap_ratio = 1.0;
+    loc_params.agree_m = 1e-6;
+    MapLocalization localization(strict, m.odometry, loc_params);
+    for (std::size_t i = 160; i < 164; ++i) {
+      const LocalizationFrame f =
+          localization.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
+      EXPECT_NE(f.status, LocalizationStatus::kLocalized)
+          << "frame " << i << ": " << f.message;
+      if (i == 160)
+        continue;
+      EXPECT_NE(f.message.find(
+                    "the tentative placement 1 frame before not confirmed (key-frame"),
+                std::string::npos)
+          << "frame " << i << ": " << f.message;
+      EXPECT_NE(f.message.find("of the source points paired"), std::string::npos)
+          << "frame " << i << ": " << f.message;
+    }
+  }
+
   // A world that was never mapped: not even tentative.
   const auto elsewhere = pathSimulator(PathType::kStraight, 40, 0.0, 9);
   for (std::size_t i = 0; i < 40; i += 4) {
