@@ -477,6 +477,67 @@ Odometry::Impl::secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
 }
 
 void
+Odometry::Impl::solveColdStartMotion(const Frame& frame,
+                                     OdometryFrameResult& result) const
+{
+  const double dt_first =
+      (result.timestamp_s - t_first) * params.deskew.seconds_per_timestamp;
+  if (!frame.times || frame.source_indices.empty() || !(dt_first > 1e-6) ||
+      dt_first >= 1.0)
+    return;
+  const pcl::StopWatch watch;
+  const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
+  const Eigen::Isometry3f T_first = T_world_first.cast<float>();
+  Pose3d T = result.T_world_lidar;
+  DenseResult dense;
+  int rounds = 0;
+  bool converged = false;
+  while (!converged && rounds < kColdStartRounds) {
+    ++rounds;
+    const Twist xi = logSE3(T_world_first.inverse() * T) / dt_first;
+    // The first scan compensated with this motion, as rebuildMapFromFirstScan puts it.
+    const pcl::PointCloud<pcl::PointXYZI>::Ptr first =
+        deskewCloud(*first_scan, first_times, xi, params.deskew.bins);
+    Points3f points_world;
+    for (const int i : odometry_detail::voxelDownsampleIndices(
+             *first, params.dense.map_voxel_size_m / 4.0, in_range))
+      points_world.push_back(T_first * first->points[i].getVector3fMap());
+    VoxelPlaneMap map(params.dense);
+    map.insert(points_world, T_first.translation());
+    dense = registerToMap(odometry_detail::toPoints(*deskewIndices(
+                              frame.input, *frame.times, frame.source_indices, xi)),
+                          map,
+                          T,
+                          params.dense);
+    if (!dense.success)
+      break;
+    converged = (dense.T_world_lidar.translation() - T.translation()).norm() <
+                kColdStartConvergedM;
+    T = dense.T_world_lidar;
+  }
+  result.timings.deskew_ms += watch.getTime();
+  const double speed_mps = (T_world_first.inverse() * T).translation().norm() / dt_first;
+  if (!converged || !dense.success ||
+      speed_mps > params.turn_search.cold_start_max_speed_mps)
+    return;
+  result.status = TrackingStatus::kDenseFallback;
+  result.T_world_lidar = T;
+  result.refined = true;
+  keepDenseStats(dense, result);
+  char text[192];
+  std::snprintf(text,
+                sizeof text,
+                "; in its place, as a cold start, the motion solved with both scans "
+                "compensated by it (%d round%s, %d/%d paired, %.1f m/s)",
+                rounds,
+                rounds == 1 ? "" : "s",
+                dense.num_correspondences,
+                dense.num_source_points,
+                speed_mps);
+  result.message += text;
+}
+
+void
 Odometry::Impl::rebuildMapFromFirstScan(OdometryFrameResult& result)
 {
   const double dt_first =

@@ -78,6 +78,12 @@ constexpr double kMinFallbackPairedRatio = 0.6;
 constexpr double kDistinctPairsFactor = 1.25;
 /// ... but never below this fraction.
 constexpr double kMinDistinctPairedRatio = 0.2;
+
+/// A cold start's motion solved with the first scan and the second both compensated by
+/// it (solveColdStartMotion): at most this many rounds, done when a round moves the pose
+/// less than kColdStartConvergedM.
+constexpr int kColdStartRounds = 4;
+constexpr double kColdStartConvergedM = 0.01;
 /// With a tracked velocity, dense ICP from the prior is kept over a hypothesis that
 /// pairs at most 1 / this times as many points (moving cars pair too).
 constexpr double kPriorPairsShare = 0.9;
@@ -467,6 +473,13 @@ struct Odometry::Impl
   /// before it). Once the next frame's motion is known, the local map is rebuilt from
   /// that scan compensated with it (the key-frame's own stored cloud stays as it was).
   void rebuildMapFromFirstScan(OdometryFrameResult& result);
+  /// Step 5d of track, before 5e (rebuildMapFromFirstScan): the second scan of a run
+  /// whose motion neither features nor the dense step measured (the constant-velocity
+  /// branch). With no frame before, that branch had no motion to predict, and the
+  /// first scan in the map is as distorted as this one. Both are compensated with the
+  /// motion estimate and this scan is aligned again, until the motion stops moving;
+  /// a converged result is taken as a dense fallback.
+  void solveColdStartMotion(const Frame& frame, OdometryFrameResult& result) const;
   /// The times to compensate \a input with (params.deskew): the given ones (processFrame
   /// passes only usable ones), times from the azimuth, or none.
   std::optional<odometry_detail::PointTimes>

@@ -111,7 +111,10 @@ Odometry::Impl::track(Frame& frame, OdometryFrameResult result)
   if (!feature_track.ok ||
       inliersOf(feature_track.ransac) < params.strong_feature_inliers)
     keepPriorHeight(frame, result);
-  // 5d. The local map rebuilt from the first scan, compensated, once its motion is
+  // 5d. A cold start that measured no motion: solved with both scans compensated.
+  if (first_scan && !result.refined)
+    solveColdStartMotion(frame, result);
+  // 5e. The local map rebuilt from the first scan, compensated, once its motion is
   //     known.
   if (first_scan)
     rebuildMapFromFirstScan(result);
