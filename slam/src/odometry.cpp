@@ -385,13 +385,21 @@ void
 Odometry::Impl::insertNow(const pcl::PointCloud<pcl::PointXYZI>& cloud,
                           const Pose3d& T_world_lidar)
 {
+  insertScan(cloud, T_world_lidar, local_map);
+}
+
+void
+Odometry::Impl::insertScan(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                           const Pose3d& T_world_lidar,
+                           VoxelPlaneMap& map) const
+{
   const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
   const Eigen::Isometry3f T = T_world_lidar.cast<float>();
   Points3f points_world;
   for (const int i : odometry_detail::voxelDownsampleIndices(
            cloud, params.dense.map_voxel_size_m / 4.0, in_range))
     points_world.push_back(T * cloud.points[i].getVector3fMap());
-  local_map.insert(points_world, T.translation());
+  map.insert(points_world, T.translation());
 }
 
 // ---------------------------------------------------------------------------
@@ -486,8 +494,6 @@ Odometry::Impl::solveColdStartMotion(const Frame& frame,
       dt_first >= 1.0)
     return;
   const pcl::StopWatch watch;
-  const odometry_detail::RangeFilter in_range(params.min_range_m, params.max_range_m);
-  const Eigen::Isometry3f T_first = T_world_first.cast<float>();
   Pose3d T = result.T_world_lidar;
   DenseResult dense;
   int rounds = 0;
@@ -495,15 +501,11 @@ Odometry::Impl::solveColdStartMotion(const Frame& frame,
   while (!converged && rounds < kColdStartRounds) {
     ++rounds;
     const Twist xi = logSE3(T_world_first.inverse() * T) / dt_first;
-    // The first scan compensated with this motion, as rebuildMapFromFirstScan puts it.
-    const pcl::PointCloud<pcl::PointXYZI>::Ptr first =
-        deskewCloud(*first_scan, first_times, xi, params.deskew.bins);
-    Points3f points_world;
-    for (const int i : odometry_detail::voxelDownsampleIndices(
-             *first, params.dense.map_voxel_size_m / 4.0, in_range))
-      points_world.push_back(T_first * first->points[i].getVector3fMap());
+    // The map rebuildMapFromFirstScan would build with this motion.
     VoxelPlaneMap map(params.dense);
-    map.insert(points_world, T_first.translation());
+    insertScan(*deskewCloud(*first_scan, first_times, xi, params.deskew.bins),
+               T_world_first,
+               map);
     dense = registerToMap(odometry_detail::toPoints(*deskewIndices(
                               frame.input, *frame.times, frame.source_indices, xi)),
                           map,

@@ -497,6 +497,11 @@ struct Odometry::Impl
   /// insertIntoMap's work, on the calling thread.
   void insertNow(const pcl::PointCloud<pcl::PointXYZI>& cloud,
                  const Pose3d& T_world_lidar);
+  /// A scan's points into \a map as the local map takes them (voxelized at a quarter
+  /// of its voxel, in range).
+  void insertScan(const pcl::PointCloud<pcl::PointXYZI>& cloud,
+                  const Pose3d& T_world_lidar,
+                  VoxelPlaneMap& map) const;
   /// The whole compensated scan as keptCloud() makes it, shared.
   const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
   keptCloudPtr(Frame& frame, OdometryFrameResult& result) const
