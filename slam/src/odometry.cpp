@@ -484,15 +484,21 @@ Odometry::Impl::secondDeskewPass(const pcl::PointCloud<pcl::PointXYZI>& input,
   result.timings.deskew_ms += watch.getTime();
 }
 
+std::optional<double>
+Odometry::Impl::sinceFirstScan(double timestamp_s) const
+{
+  const double dt = (timestamp_s - t_first) * params.deskew.seconds_per_timestamp;
+  return dt > 1e-6 && dt < 1.0 ? std::optional<double>(dt) : std::nullopt;
+}
+
 void
 Odometry::Impl::solveColdStartMotion(const Frame& frame,
                                      OdometryFrameResult& result) const
 {
-  const double dt_first =
-      (result.timestamp_s - t_first) * params.deskew.seconds_per_timestamp;
-  if (!frame.times || frame.source_indices.empty() || !(dt_first > 1e-6) ||
-      dt_first >= 1.0)
+  const std::optional<double> since_first = sinceFirstScan(result.timestamp_s);
+  if (!frame.times || frame.source_indices.empty() || !since_first)
     return;
+  const double dt_first = *since_first;
   const pcl::StopWatch watch;
   Pose3d T = result.T_world_lidar;
   DenseResult dense;
@@ -542,11 +548,10 @@ Odometry::Impl::solveColdStartMotion(const Frame& frame,
 void
 Odometry::Impl::rebuildMapFromFirstScan(OdometryFrameResult& result)
 {
-  const double dt_first =
-      (result.timestamp_s - t_first) * params.deskew.seconds_per_timestamp;
-  if (result.refined && map_scans == 1 && dt_first > 1e-6 && dt_first < 1.0) {
+  const std::optional<double> dt_first = sinceFirstScan(result.timestamp_s);
+  if (result.refined && map_scans == 1 && dt_first) {
     const pcl::StopWatch watch;
-    const Twist xi = logSE3(T_world_first.inverse() * result.T_world_lidar) / dt_first;
+    const Twist xi = logSE3(T_world_first.inverse() * result.T_world_lidar) / *dt_first;
     localMap() = VoxelPlaneMap(params.dense);
     map_scans = 0;
     insertIntoMap(deskewCloud(*first_scan, first_times, xi, params.deskew.bins),

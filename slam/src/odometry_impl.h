@@ -473,6 +473,9 @@ struct Odometry::Impl
   /// before it). Once the next frame's motion is known, the local map is rebuilt from
   /// that scan compensated with it (the key-frame's own stored cloud stays as it was).
   void rebuildMapFromFirstScan(OdometryFrameResult& result);
+  /// Seconds from the first scan to \a timestamp_s, when the first scan's motion can
+  /// be told from it (more than 1 us, less than 1 s); else none.
+  std::optional<double> sinceFirstScan(double timestamp_s) const;
   /// Step 5d of track, before 5e (rebuildMapFromFirstScan): the second scan of a run
   /// whose motion neither features nor the dense step measured (the constant-velocity
   /// branch). With no frame before, that branch had no motion to predict, and the

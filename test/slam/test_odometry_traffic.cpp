@@ -88,6 +88,27 @@ kitti08Start(const std::filesystem::path& data, std::uint64_t seed, std::size_t 
   return start;
 }
 
+/// Every scan of \a scans through one odometry, in order.
+std::vector<OdometryFrameResult>
+trackScans(const OdometryParams& params, const std::vector<ScanFrame>& scans)
+{
+  Odometry odometry(params);
+  std::vector<OdometryFrameResult> results;
+  for (std::size_t i = 0; i < scans.size(); ++i)
+    results.push_back(odometry.processFrame(
+        scans[i].cloud, scans[i].timestamp_s, i, scans[i].point_times_s));
+  return results;
+}
+
+PoseVector
+posesOf(const std::vector<OdometryFrameResult>& results)
+{
+  PoseVector poses;
+  for (const OdometryFrameResult& r : results)
+    poses.push_back(r.T_world_lidar);
+  return poses;
+}
+
 TEST(OdometryTraffic, StandingEgoIsNotMovedByTrafficAndStopAndGoTracks)
 {
   PathParams path;
@@ -204,18 +225,8 @@ TEST(OdometryTraffic, ASteepClimbKeepsItsHeight)
   PCL_RAST_REQUIRE_SHARED_DATA(data);
   const std::size_t frames = 130;
   const Kitti08Start start = kitti08Start(data, 42, frames);
-  const LidarSimulator& sim = *start.sim;
-  const std::vector<ScanFrame>& scans = start.scans;
   auto run = [&](const OdometryParams& odometry_params) {
-    Odometry odometry(odometry_params);
-    PoseVector estimate;
-    for (std::size_t i = 0; i < frames; ++i)
-      estimate.push_back(
-          odometry
-              .processFrame(
-                  scans[i].cloud, scans[i].timestamp_s, i, scans[i].point_times_s)
-              .T_world_lidar);
-    return worstStep(estimate, sim);
+    return worstStep(posesOf(trackScans(odometry_params, start.scans)), *start.sim);
   };
   const double worst = run(OdometryParams());
   OdometryParams without;
@@ -241,21 +252,14 @@ TEST(OdometryTraffic, AColdStartThatTrackedNothingSolvesItsMotionFromBothScans)
   PCL_RAST_REQUIRE_SHARED_DATA(data);
   const std::size_t frames = 6;
   const Kitti08Start start = kitti08Start(data, 66, frames);
-  Odometry odometry{OdometryParams()};
-  PoseVector estimate;
-  for (std::size_t i = 0; i < frames; ++i) {
-    const ScanFrame& scan = start.scans[i];
-    const OdometryFrameResult r =
-        odometry.processFrame(scan.cloud, scan.timestamp_s, i, scan.point_times_s);
-    estimate.push_back(r.T_world_lidar);
-    if (i == 1) {
-      EXPECT_EQ(r.status, TrackingStatus::kDenseFallback) << r.message;
-      EXPECT_NE(r.message.find("as a cold start, the motion solved with both scans"),
-                std::string::npos)
-          << r.message;
-    }
-  }
-  const double worst = worstStep(estimate, *start.sim);
+  const std::vector<OdometryFrameResult> results =
+      trackScans(OdometryParams(), start.scans);
+  const OdometryFrameResult& second = results[1];
+  EXPECT_EQ(second.status, TrackingStatus::kDenseFallback) << second.message;
+  EXPECT_NE(second.message.find("as a cold start, the motion solved with both scans"),
+            std::string::npos)
+      << second.message;
+  const double worst = worstStep(posesOf(results), *start.sim);
   std::cout << "cold start without tracking: largest per-frame error " << worst
             << " m over the first " << frames << " frames\n";
   // Measured: 0.048 m. Before, frame 1 kept the constant-velocity branch's fit from no
