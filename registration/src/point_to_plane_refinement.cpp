@@ -167,13 +167,15 @@ associate(const PointVector& source,
           const PointToPlaneTarget& target,
           const Eigen::Isometry3d& T,
           double max_distance_m,
+          std::vector<PointToPlaneTarget::CellLookup>& lookups,
           std::vector<Pair>& pairs)
 {
   pairs.clear();
+  lookups.resize(source.size());
   Eigen::Vector3d q, n;
   for (std::size_t i = 0; i < source.size(); ++i) {
     const Eigen::Vector3d p_target = T * source[i];
-    if (!target.nearest(p_target, max_distance_m, q, n))
+    if (!target.nearest(p_target, max_distance_m, q, n, lookups[i]))
       continue;
     Pair pair{p_target, q, n, Eigen::Vector3d::Zero(), n.dot(p_target - q)};
     if (plane_to_plane)
@@ -297,10 +299,18 @@ refine(const PointVector& source_all,
   Eigen::Isometry3d T = T_target_source_guess;
   std::vector<Pair> pairs;
   pairs.reserve(source.size());
+  // Each source point's cells, kept between iterations (the same pairs, fewer look-ups).
+  std::vector<PointToPlaneTarget::CellLookup> lookups;
   std::vector<double> abs_residuals;
   for (int iteration = 0; iteration < params.max_iterations; ++iteration) {
-    associate(source, source_normals, plane_to_plane, target, T,
-              params.max_correspondence_distance_m, pairs);
+    associate(source,
+              source_normals,
+              plane_to_plane,
+              target,
+              T,
+              params.max_correspondence_distance_m,
+              lookups,
+              pairs);
     result.iterations = iteration + 1;
     result.num_correspondences = static_cast<int>(pairs.size());
     if (result.num_correspondences < params.min_correspondences) {

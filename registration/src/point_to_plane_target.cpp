@@ -55,18 +55,29 @@ voxelStats(const PointVector& points,
            VoxelHashMap& voxel_of_cell,
            std::vector<VoxelStats>& voxels)
 {
-  voxel_of_cell.reset((last - first) / 32);
+  // A scan holds about one voxel per 8 points at 0.5 m: room for them from the start,
+  // so the table is not rebuilt as it fills.
+  voxel_of_cell.reset((last - first) / 8);
   voxels.reserve((last - first) / 4 + 16);
+  // Consecutive scan points mostly share a voxel: a repeat of the last key skips the
+  // table (the sums come out the same, in the same order).
+  VoxelKey last_key = ~VoxelKey(0);
+  int v = -1;
   for (std::size_t i = first; i < last; ++i) {
     const Eigen::Vector3d& p = points[i];
     if (!p.allFinite())
       continue;
     const Eigen::Array3i c = cellOf(p, inverse_voxel_m);
-    const auto [v, inserted] =
-        voxel_of_cell.insert(keyOf(c), static_cast<int>(voxels.size()));
-    if (inserted) {
-      voxels.emplace_back();
-      voxels.back().cell = c;
+    const VoxelKey key = keyOf(c);
+    if (key != last_key) {
+      const auto [found, inserted] =
+          voxel_of_cell.insert(key, static_cast<int>(voxels.size()));
+      if (inserted) {
+        voxels.emplace_back();
+        voxels.back().cell = c;
+      }
+      v = found;
+      last_key = key;
     }
     VoxelStats& s = voxels[v];
     ++s.count;
@@ -337,6 +348,22 @@ PointToPlaneTarget::nearest(const Eigen::Vector3d& query,
                             Eigen::Vector3d& point,
                             Eigen::Vector3d& normal) const
 {
+  CellLookup lookup;
+  return nearest(query, max_distance_m, point, normal, lookup);
+}
+
+namespace {
+/// A slot of CellLookup not looked up yet.
+constexpr int kUnknownSlot = -2;
+} // namespace
+
+bool
+PointToPlaneTarget::nearest(const Eigen::Vector3d& query,
+                            double max_distance_m,
+                            Eigen::Vector3d& point,
+                            Eigen::Vector3d& normal,
+                            CellLookup& lookup) const
+{
   if (!index_ || points_.empty())
     return false;
   const Index& index = *index_;
@@ -344,6 +371,11 @@ PointToPlaneTarget::nearest(const Eigen::Vector3d& query,
   const Eigen::Array3f scaled = q.array() * static_cast<float>(index.inverse_cell_m);
   const Eigen::Array3f floor = scaled.floor();
   const Eigen::Array3i cell = floor.cast<int>();
+  const VoxelKey cell_key = packVoxelKey(cell.x(), cell.y(), cell.z());
+  if (lookup.cell != cell_key) {
+    lookup.cell = cell_key;
+    lookup.slots.fill(kUnknownSlot);
+  }
   // Squared distances to the lower and upper faces of the query's cell, per axis.
   const float cell_m = static_cast<float>(index.cell_m);
   const Eigen::Array3f to_lower = (scaled - floor) * cell_m;
@@ -352,26 +384,33 @@ PointToPlaneTarget::nearest(const Eigen::Vector3d& query,
   int best = -1;
   // Own cell first, then the 26 neighbours, skipping any farther than the best so far.
   static constexpr int kOffsets[3] = {0, -1, 1};
+  int n = 0; // the neighbour's place in lookup.slots
   for (const int dx : kOffsets) {
     const float gx = dx < 0   ? to_lower.x() * to_lower.x()
                      : dx > 0 ? to_upper.x() * to_upper.x()
                               : 0.f;
-    if (gx >= best_sq)
+    if (gx >= best_sq) {
+      n += 9;
       continue;
+    }
     for (const int dy : kOffsets) {
       const float gy = gx + (dy < 0   ? to_lower.y() * to_lower.y()
                              : dy > 0 ? to_upper.y() * to_upper.y()
                                       : 0.f);
-      if (gy >= best_sq)
+      if (gy >= best_sq) {
+        n += 3;
         continue;
+      }
       for (const int dz : kOffsets) {
         const float gz = gy + (dz < 0   ? to_lower.z() * to_lower.z()
                                : dz > 0 ? to_upper.z() * to_upper.z()
                                         : 0.f);
+        int& slot = lookup.slots[n++];
         if (gz >= best_sq)
           continue;
-        const int slot =
-            index.cells.find(packVoxelKey(cell.x() + dx, cell.y() + dy, cell.z() + dz));
+        if (slot == kUnknownSlot)
+          slot =
+              index.cells.find(packVoxelKey(cell.x() + dx, cell.y() + dy, cell.z() + dz));
         if (slot < 0)
           continue;
         const auto [begin, end] = index.ranges[slot];

@@ -311,6 +311,45 @@ TEST(PointToPlaneRefinement, TwoThreadsPrepareTheSameTarget)
   EXPECT_NE(why.find("threads must be 1 or 2, got 3"), std::string::npos) << why;
 }
 
+/// nearest() with a kept CellLookup finds what a fresh search finds, whether the query
+/// stays in its cell (the kept slots are used, with the pruning of the fresh search) or
+/// leaves it (looked up afresh): random walks with steps from a millimetre to half a
+/// metre through a street scene, near facades, boxes and the edges of the data.
+TEST(PointToPlaneRefinement, AKeptCellLookupFindsWhatAFreshSearchFinds)
+{
+  const PointVector points = sampleScene(4);
+  PointToPlaneTarget target;
+  target.build(points, PointToPlaneParams());
+  ASSERT_GT(target.size(), 1000u);
+  std::mt19937 rng(11);
+  std::uniform_int_distribution<std::size_t> start(0, points.size() - 1);
+  std::uniform_real_distribution<double> step_scale(-3.0, -0.3); // 1 mm to 0.5 m
+  std::normal_distribution<double> direction(0.0, 1.0);
+  int found = 0, kept_cell = 0;
+  for (int walk = 0; walk < 200; ++walk) {
+    Eigen::Vector3d q = points[start(rng)];
+    PointToPlaneTarget::CellLookup lookup;
+    std::uint64_t cell_before = lookup.cell;
+    for (int step = 0; step < 30; ++step) {
+      const Eigen::Vector3d d(direction(rng), direction(rng), direction(rng));
+      q += std::pow(10.0, step_scale(rng)) * d.normalized();
+      Eigen::Vector3d p_fresh, n_fresh, p_kept, n_kept;
+      const bool fresh = target.nearest(q, 1.0, p_fresh, n_fresh);
+      const bool kept = target.nearest(q, 1.0, p_kept, n_kept, lookup);
+      ASSERT_EQ(fresh, kept) << "walk " << walk << " step " << step;
+      kept_cell += lookup.cell == cell_before;
+      cell_before = lookup.cell;
+      if (!fresh)
+        continue;
+      ++found;
+      ASSERT_EQ(p_fresh, p_kept) << "walk " << walk << " step " << step;
+      ASSERT_EQ(n_fresh, n_kept) << "walk " << walk << " step " << step;
+    }
+  }
+  EXPECT_GT(found, 3000);
+  EXPECT_GT(kept_cell, 1000) << "the walks should often stay in their cell";
+}
+
 /// A source prepared with its points' times (a raw sweep) keeps the planes of the one
 /// prepared without, and gives each the mean time of its voxel's points: with times
 /// linear in x, the mean time is that of the mean point. Then it refines as the

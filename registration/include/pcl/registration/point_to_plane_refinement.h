@@ -166,6 +166,24 @@ public:
           Eigen::Vector3d& point,
           Eigen::Vector3d& normal) const;
 
+  /// \brief What nearest() found in the hash map around one query: the query's cell
+  /// and the slots of the 27 cells around it, each looked up when first needed. Between
+  /// two Gauss-Newton iterations a source point moves by millimetres and nearly always
+  /// stays in its cell, so the next search skips the hash look-ups (most of its time).
+  /// Valid for the target that filled it only.
+  struct CellLookup
+  {
+    std::uint64_t cell = ~std::uint64_t(0); ///< packed cell key; none yet
+    std::array<int, 27> slots{};            ///< kUnknown, -1 (empty) or a cell's slot
+  };
+  /// \brief nearest(), reusing \a lookup when the query is in the cell it holds (and
+  /// filling it otherwise): the same point and normal as a fresh search.
+  bool nearest(const Eigen::Vector3d& query,
+               double max_distance_m,
+               Eigen::Vector3d& point,
+               Eigen::Vector3d& normal,
+               CellLookup& lookup) const;
+
   /// \brief Planar target points (metres) and their unit normals, index-aligned.
   const PointVector&
   points() const
