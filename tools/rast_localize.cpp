@@ -235,6 +235,11 @@ run(int argc, char** argv)
                  "a tentative placement is taken only when a second placement agrees, not "
                  "when the next scan's alignment to the map confirms it",
                  &no_tentative_alignment);
+  bool no_merged_keyframes = false;
+  args.addSwitch("no-merged-keyframes",
+                 "a scan that aligns to none of the nearest key-frames alone is not "
+                 "aligned to their clouds together (as it is within 10 m of them)",
+                 &no_merged_keyframes);
   bool no_lookahead = false;
   args.addSwitch(
       "no-lookahead",
@@ -248,6 +253,8 @@ run(int argc, char** argv)
     return kExitOk;
   installStopSignals();
   params.confirm_tentative_by_alignment = !no_tentative_alignment;
+  if (no_merged_keyframes)
+    params.merged_keyframes_within_m = 0.0;
 
   // ---- validate everything before any work ----
   if (first < 0 || stride < 1 || last < -1 || (last >= 0 && last < first))
@@ -512,6 +519,8 @@ run(int argc, char** argv)
       {"backtrack_frames", params.backtrack_frames},
       {"tentative_by_alignment", params.confirm_tentative_by_alignment},
       {"tried", placements_tried}};
+  summary["map_alignment"] = {
+      {"merged_keyframes_within_m", params.merged_keyframes_within_m}};
   summary["lookahead"] = {{"on", !no_lookahead},
                           {"frames_prepared_ahead", prepared_ahead},
                           {"alignment_sources_prepared_ahead", alignment_ahead}};

@@ -62,6 +62,9 @@ MapLocalizationParams::isValid(std::string* why) const
                 std::to_string(lost_prior_min_dense_overlap));
   if (!(reuse_target_m >= 0.0))
     return fail("reuse_target_m must be >= 0, got " + std::to_string(reuse_target_m));
+  if (!(merged_keyframes_within_m >= 0.0))
+    return fail("merged_keyframes_within_m must be >= 0, got " +
+                std::to_string(merged_keyframes_within_m));
   if (map_keyframes < 1)
     return fail("map_keyframes must be >= 1, got " + std::to_string(map_keyframes));
   if (!alignment.isValid(&sub))
@@ -184,6 +187,9 @@ struct MapLocalization::Impl
     KeyFrameId keyframe = 0;
     int correspondences = 0;
     double rmse_m = 0.0;
+    /// What the scan was aligned to, for the frame's message: "key-frame 7", or
+    /// "key-frames 7/8/12 together".
+    std::string target;
   };
 
   /// A scan prepared for the map alignment: its voxel planes (prepareSource()) from
@@ -349,6 +355,10 @@ struct MapLocalization::Impl
   std::map<KeyFrameId, std::shared_ptr<const PointToPlaneTarget>> targets;
   std::deque<KeyFrameId> target_order;
   static constexpr std::size_t kMaxTargets = 32;
+  /// The last target built from several key-frames' clouds together (alignToMerged()),
+  /// in the world frame, and whose clouds it holds.
+  std::shared_ptr<const PointToPlaneTarget> merged_target;
+  std::vector<KeyFrameId> merged_ids;
   /// A placement attempt running in the background (background_placement_lag), with
   /// what taking it later needs. Declared after what it uses: it is waited for first.
   struct Pending
@@ -680,7 +690,7 @@ struct MapLocalization::Impl
           alignToMap([&]() -> const Source& { return source; }, predicted, why, &scratch);
       if (a) {
         if (std::string worse = suddenlyWorse(a->rmse_m, rmse); !worse.empty()) {
-          why = "key-frame " + std::to_string(a->keyframe) + ": " + worse;
+          why = a->target + ": " + worse;
           a.reset();
         }
       }
@@ -698,8 +708,7 @@ struct MapLocalization::Impl
       b.correspondences = a->correspondences;
       b.rmse_m = a->rmse_m;
       b.backtracked = true;
-      b.message = "aligned to key-frame " + std::to_string(a->keyframe) +
-                  " backwards from the placement of frame " +
+      b.message = "aligned to " + a->target + " backwards from the placement of frame " +
                   std::to_string(f.frame_index) + " (before: " + u.frame.message + ")";
       f.backtracked_frames.push_back(std::move(b));
       T_world_next = a->T_world_lidar;
@@ -821,9 +830,108 @@ struct MapLocalization::Impl
       a.keyframe = kf->id;
       a.correspondences = r.num_correspondences;
       a.rmse_m = r.rmse_m;
+      a.target = "key-frame " + std::to_string(kf->id);
       return a;
     }
     return std::nullopt;
+  }
+
+  /// The scan aligned to the clouds of the nearest key-frames together, when the
+  /// nearest is within MapLocalizationParams::merged_keyframes_within_m of
+  /// \a predicted; \a why gains the reason when it does not confirm the pose.
+  std::optional<Alignment>
+  alignToNearestTogether(const std::function<const Source&()>& scan,
+                         const Pose3d& predicted,
+                         std::string& why)
+  {
+    const std::vector<const KeyFrame*> near = nearestKeyFrames(predicted);
+    if (near.size() < 2 ||
+        nearestDistance(near, predicted) > params.merged_keyframes_within_m)
+      return std::nullopt;
+    const Source& source = scan();
+    if (source.points.empty())
+      return std::nullopt;
+    return alignToMerged(source, near, predicted, why);
+  }
+
+  /// The distance from \a T_world to the nearest of \a near [m].
+  static double nearestDistance(const std::vector<const KeyFrame*>& near,
+                                const Pose3d& T_world)
+  {
+    double best = std::numeric_limits<double>::infinity();
+    for (const KeyFrame* kf : near)
+      best = std::min(
+          best, (kf->T_world_keyframe.translation() - T_world.translation()).norm());
+    return best;
+  }
+
+  /// The world-frame target of the clouds of \a near together: the last one when it
+  /// holds the same key-frames, else built (and kept for the next frame).
+  std::shared_ptr<const PointToPlaneTarget>
+  mergedTarget(const std::vector<const KeyFrame*>& near)
+  {
+    std::vector<KeyFrameId> ids;
+    for (const KeyFrame* kf : near)
+      ids.push_back(kf->id);
+    std::sort(ids.begin(), ids.end());
+    if (merged_target && ids == merged_ids)
+      return merged_target;
+    PointVector world;
+    for (const KeyFrame* kf : near) {
+      const auto cloud = sessionCloud(localizer.session(), kf->id);
+      if (!cloud)
+        continue;
+      const Eigen::Isometry3d T = kf->T_world_keyframe;
+      for (const auto& p : cloud->points)
+        world.push_back(T * Eigen::Vector3d(p.x, p.y, p.z));
+    }
+    auto target = std::make_shared<PointToPlaneTarget>();
+    try {
+      target->build(world, params.alignment);
+    } catch (const std::invalid_argument&) {
+      target = std::make_shared<PointToPlaneTarget>(); // empty: nothing to align to
+    }
+    merged_target = target;
+    merged_ids = std::move(ids);
+    return target;
+  }
+
+  /// The scan aligned to the clouds of \a near together
+  /// (MapLocalizationParams::merged_keyframes_within_m); \a why gains the reason when it
+  /// does not confirm the pose. The alignment names the first of them (the nearest,
+  /// or the nearest with a target built already, as nearestKeyFrames() orders them).
+  std::optional<Alignment> alignToMerged(const Source& source,
+                                         const std::vector<const KeyFrame*>& near,
+                                         const Pose3d& predicted,
+                                         std::string& why)
+  {
+    const auto map = mergedTarget(near);
+    if (map->empty())
+      return std::nullopt;
+    const PointToPlaneResult r = refinePointToPlane(
+        source.points, source.normals, *map, predicted, params.alignment);
+    std::string which = "key-frames ";
+    for (std::size_t i = 0; i < near.size(); ++i)
+      which += (i == 0 ? "" : "/") + std::to_string(near[i]->id);
+    which += " together";
+    if (!r.success) {
+      why += "; " + which + ": " + r.message;
+      return std::nullopt;
+    }
+    if (r.rmse_m > params.max_rmse_m) {
+      char text[96];
+      std::snprintf(
+          text, sizeof text, "rmse %.3f m > %.3f m", r.rmse_m, params.max_rmse_m);
+      why += "; " + which + ": " + text;
+      return std::nullopt;
+    }
+    Alignment a;
+    a.T_world_lidar = normalizedPose(r.T_target_source);
+    a.keyframe = near.front()->id;
+    a.correspondences = r.num_correspondences;
+    a.rmse_m = r.rmse_m;
+    a.target = which;
+    return a;
   }
 
   /// The odometry on this frame (started afresh when stale), and its motion since
@@ -927,22 +1035,22 @@ struct MapLocalization::Impl
                        (recent_placement->T_odom_lidar.inverse() * T_odom_lidar));
     std::string why;
     std::optional<Alignment> a = alignToMap(scan, moved, why);
+    if (!a)
+      a = alignToNearestTogether(scan, moved, why);
     const std::size_t ago = frames - recent_placement->frame;
     if (!a) {
       how = "the tentative placement " + std::to_string(ago) +
             (ago == 1 ? " frame" : " frames") + " before not confirmed (" + why + ")";
     } else {
-      char text[160];
-      std::snprintf(
-          text,
-          sizeof text,
-          "aligned to key-frame %u from the tentative placement %zu frames before "
-          "(%d points paired, rmse %.3f m)",
-          static_cast<unsigned>(a->keyframe),
-          ago,
-          a->correspondences,
-          a->rmse_m);
-      how = text;
+      char text[96];
+      std::snprintf(text,
+                    sizeof text,
+                    " from the tentative placement %zu frames before "
+                    "(%d points paired, rmse %.3f m)",
+                    ago,
+                    a->correspondences,
+                    a->rmse_m);
+      how = "aligned to " + a->target + text;
     }
     return a;
   }
@@ -1149,7 +1257,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
     std::optional<Impl::Alignment> a = m.alignToMap(alignment_source, *predicted, why);
     if (a) {
       if (std::string worse = m.suddenlyWorse(a->rmse_m); !worse.empty()) {
-        why = "key-frame " + std::to_string(a->keyframe) + ": " + worse;
+        why = a->target + ": " + worse;
         a.reset();
       }
     }
@@ -1162,7 +1270,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
       f.keyframe = a->keyframe;
       f.correspondences = a->correspondences;
       f.rmse_m = a->rmse_m;
-      f.message = "aligned to key-frame " + std::to_string(a->keyframe);
+      f.message = "aligned to " + a->target;
       m.failed_placements = 0;
       m.confirm(a->T_world_lidar, dt);
       f.time_ms = watch.getTime();

@@ -449,6 +449,79 @@ TEST(MapLocalization, TentativePlacementsAreTakenWhenTwoScansAgree)
   }
 }
 
+/// A tentative placement whose next scan pairs too little with each nearest key-frame
+/// alone is confirmed by their clouds together (MapLocalizationParams::
+/// merged_keyframes_within_m). The map alignment reads each key-frame's cloud cut to a
+/// quarter of the view (key-frame k keeps the 90 degrees around azimuth k * 90 in its
+/// own frame), so one key-frame pairs at most about a quarter of a whole scan, under
+/// the 30 % asked, and three neighbours together three quarters; the placements were
+/// indexed on the whole clouds. No full placement (1000 inliers asked) and no two
+/// placements agreeing (within 1 um) can localize here: only a tentative placement
+/// confirmed by the next scan's alignment.
+TEST(MapLocalization, ATentativePlacementIsConfirmedByTheNearestKeyFramesTogether)
+{
+  const MappedLoop m = mapLoop();
+  Session session = loadSession(m.dir.string());
+  using CloudConstPtr = pcl::PointCloud<pcl::PointXYZI>::ConstPtr;
+  std::vector<CloudConstPtr> whole, quarter;
+  for (KeyFrame::Ptr& kf : session.keyframes) {
+    ASSERT_EQ(kf->id, whole.size());
+    ASSERT_TRUE(kf->cloud);
+    auto cut = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    const double centre = 0.5 * M_PI * static_cast<double>(kf->id % 4);
+    for (const auto& p : kf->cloud->points) {
+      const double off = std::remainder(std::atan2(p.y, p.x) - centre, 2.0 * M_PI);
+      if (std::abs(off) < 0.25 * M_PI)
+        cut->push_back(p);
+    }
+    whole.push_back(kf->cloud);
+    quarter.push_back(cut);
+    kf->cloud = nullptr; // from cloud_source, when needed
+  }
+  session.cloud_files.clear(); // not read from the files either
+  auto cut_clouds = std::make_shared<bool>(false);
+  session.cloud_source = [whole, quarter, cut_clouds](KeyFrameId id) {
+    return *cut_clouds ? quarter.at(id) : whole.at(id);
+  };
+  SessionLocalizerParams params;
+  params.odometry = m.odometry;
+  params.verification.min_inliers = 1000;
+  const SessionLocalizer quarters(std::move(session), params);
+  *cut_clouds = true; // the index holds its own targets from the whole clouds
+
+  for (const bool together : {false, true}) {
+    MapLocalizationParams loc_params;
+    loc_params.agree_m = 1e-6;
+    ASSERT_DOUBLE_EQ(loc_params.alignment.min_overlap_ratio, 0.3);
+    if (!together)
+      loc_params.merged_keyframes_within_m = 0.0;
+    MapLocalization localization(quarters, m.odometry, loc_params);
+    int confirmed = 0;
+    for (std::size_t i = 160; i < 166; ++i) {
+      const LocalizationFrame f =
+          localization.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
+      if (f.status != LocalizationStatus::kLocalized)
+        continue;
+      EXPECT_TRUE(together) << "frame " << i << ": " << f.message;
+      EXPECT_LT((f.T_world_lidar.translation() - m.truth(i).translation()).norm(), 0.1)
+          << "frame " << i << ": " << f.message;
+      EXPECT_LT(rotationErrorDeg(f.T_world_lidar, m.truth(i)), 0.5) << "frame " << i;
+      if (f.placed) {
+        ++confirmed;
+        EXPECT_NE(f.message.find(" together from the tentative placement"),
+                  std::string::npos)
+            << f.message;
+      }
+    }
+    // Here every other frame: a confirmed frame's successor is tracked, which one
+    // key-frame at a time cannot confirm, and is placed tentatively anew.
+    if (together)
+      EXPECT_GE(confirmed, 2);
+    else
+      EXPECT_EQ(confirmed, 0);
+  }
+}
+
 /// Off the map every placement fails: after placement_backoff_after of them in a row a
 /// placement is tried only every placement_every frames, and the first one tried on the
 /// map places the scan. Here 18 frames of a world that was never mapped, then the
@@ -952,6 +1025,8 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
   expectInvalid(mapParams([](auto& p) { p.agree_m = 0.0; }), "agree_m and agree_deg must be > 0");
   expectInvalid(mapParams([](auto& p) { p.reuse_target_m = -1.0; }),
                 "reuse_target_m must be >= 0");
+  expectInvalid(mapParams([](auto& p) { p.merged_keyframes_within_m = NAN; }),
+                "merged_keyframes_within_m must be >= 0");
   expectInvalid(mapParams([](auto& p) { p.max_rmse_ratio = 0.5; }),
                 "max_rmse_ratio must be 0 or >= 1");
   expectInvalid(mapParams([](auto& p) { p.placement_every = 0; }),

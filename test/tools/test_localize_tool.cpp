@@ -94,6 +94,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_EQ(summary["placement"]["min_inliers"].get<int>(), 40);
   EXPECT_TRUE(summary["placement"]["track_on_map"].get<bool>());
   EXPECT_TRUE(summary["lookahead"]["on"].get<bool>());
+  EXPECT_EQ(summary["map_alignment"]["merged_keyframes_within_m"].get<double>(), 10.0);
 
   // In the map's frame: where the SLAM run put the same scans.
   const auto slam = pcl::rast::readTrajectory((m.slam_out / "poses_kitti.txt").string());
@@ -110,7 +111,8 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
     ++rows;
   EXPECT_EQ(rows, 31u);
 
-  // From a given pose instead: the same place, no retrieval needed.
+  // From a given pose instead: the same place, no retrieval needed (and the key-frames
+  // one by one only, which suffice here).
   const fs::path out2 = dir_ / "out2";
   const auto& T = slam.poses[10];
   const Eigen::Quaterniond q(T.rotation());
@@ -119,14 +121,17 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
                            std::to_string(T.translation().z()) + " " + std::to_string(q.x()) +
                            " " + std::to_string(q.y()) + " " + std::to_string(q.z()) + " " +
                            std::to_string(q.w());
-  ASSERT_EQ(run("-session " + quoted(m.session) + " -input " + quoted(m.scans) + " -output " +
-                quoted(out2) + " -first 10 -last 19 -software-render -quiet -initial-pose '" +
+  ASSERT_EQ(run("-session " + quoted(m.session) + " -input " + quoted(m.scans) +
+                " -output " + quoted(out2) +
+                " -first 10 -last 19 -software-render -quiet -no-merged-keyframes "
+                "-initial-pose '" +
                 pose + "'"),
             0)
       << readFile(log_);
   const auto summary2 = nlohmann::json::parse(readFile(out2 / "summary.json"));
   EXPECT_TRUE(summary2["initial_pose_given"].get<bool>());
   EXPECT_EQ(summary2["frames_localized"].get<int>(), 10);
+  EXPECT_EQ(summary2["map_alignment"]["merged_keyframes_within_m"].get<double>(), 0.0);
 
   // Without the odometry's look-ahead: the same poses (MapLocalization's own test
   // compares them off the map, where the odometry runs on every frame).
