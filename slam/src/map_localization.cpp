@@ -810,30 +810,43 @@ struct MapLocalization::Impl
       const Pose3d guess = kf->T_world_keyframe.inverse() * predicted;
       const PointToPlaneResult r = refinePointToPlane(
           source.points, source.normals, *map, guess, params.alignment);
-      if (!r.success) {
-        why = "key-frame " + std::to_string(kf->id) + ": " + r.message;
-        continue;
-      }
-      if (r.rmse_m > params.max_rmse_m) {
-        char text[96];
-        std::snprintf(text,
-                      sizeof text,
-                      "key-frame %u: rmse %.3f m > %.3f m",
-                      static_cast<unsigned>(kf->id),
-                      r.rmse_m,
-                      params.max_rmse_m);
-        why = text;
-        continue;
-      }
-      Alignment a;
-      a.T_world_lidar = normalizedPose(kf->T_world_keyframe * r.T_target_source);
-      a.keyframe = kf->id;
-      a.correspondences = r.num_correspondences;
-      a.rmse_m = r.rmse_m;
-      a.target = "key-frame " + std::to_string(kf->id);
-      return a;
+      if (std::optional<Alignment> a = confirmed(r,
+                                                 kf->T_world_keyframe,
+                                                 kf->id,
+                                                 "key-frame " + std::to_string(kf->id),
+                                                 why))
+        return a;
     }
     return std::nullopt;
+  }
+
+  /// The refinement \a r of the scan to a target whose frame is \a T_world_target
+  /// (\a target names it, \a keyframe is the key-frame reported), when it confirms the
+  /// pose (success, RMS at most max_rmse_m); else none, and \a why_not says why.
+  std::optional<Alignment> confirmed(const PointToPlaneResult& r,
+                                     const Pose3d& T_world_target,
+                                     KeyFrameId keyframe,
+                                     std::string target,
+                                     std::string& why_not) const
+  {
+    if (!r.success) {
+      why_not = target + ": " + r.message;
+      return std::nullopt;
+    }
+    if (r.rmse_m > params.max_rmse_m) {
+      char text[64];
+      std::snprintf(
+          text, sizeof text, ": rmse %.3f m > %.3f m", r.rmse_m, params.max_rmse_m);
+      why_not = target + text;
+      return std::nullopt;
+    }
+    Alignment a;
+    a.T_world_lidar = normalizedPose(T_world_target * r.T_target_source);
+    a.keyframe = keyframe;
+    a.correspondences = r.num_correspondences;
+    a.rmse_m = r.rmse_m;
+    a.target = std::move(target);
+    return a;
   }
 
   /// The scan aligned to the clouds of the nearest key-frames together, when the
@@ -914,23 +927,11 @@ struct MapLocalization::Impl
     for (std::size_t i = 0; i < near.size(); ++i)
       which += (i == 0 ? "" : "/") + std::to_string(near[i]->id);
     which += " together";
-    if (!r.success) {
-      why += "; " + which + ": " + r.message;
-      return std::nullopt;
-    }
-    if (r.rmse_m > params.max_rmse_m) {
-      char text[96];
-      std::snprintf(
-          text, sizeof text, "rmse %.3f m > %.3f m", r.rmse_m, params.max_rmse_m);
-      why += "; " + which + ": " + text;
-      return std::nullopt;
-    }
-    Alignment a;
-    a.T_world_lidar = normalizedPose(r.T_target_source);
-    a.keyframe = near.front()->id;
-    a.correspondences = r.num_correspondences;
-    a.rmse_m = r.rmse_m;
-    a.target = which;
+    std::string why_not;
+    std::optional<Alignment> a =
+        confirmed(r, Pose3d::Identity(), near.front()->id, std::move(which), why_not);
+    if (!a)
+      why += "; " + why_not;
     return a;
   }
 
