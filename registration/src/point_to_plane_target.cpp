@@ -372,7 +372,8 @@ PointToPlaneTarget::nearest(const Eigen::Vector3d& query,
   const Eigen::Array3f floor = scaled.floor();
   const Eigen::Array3i cell = floor.cast<int>();
   const VoxelKey cell_key = packVoxelKey(cell.x(), cell.y(), cell.z());
-  if (lookup.cell != cell_key) {
+  if (lookup.cell != cell_key || lookup.target != &index) {
+    lookup.target = &index;
     lookup.cell = cell_key;
     lookup.slots.fill(kUnknownSlot);
   }

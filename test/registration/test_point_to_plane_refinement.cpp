@@ -348,6 +348,24 @@ TEST(PointToPlaneRefinement, AKeptCellLookupFindsWhatAFreshSearchFinds)
   }
   EXPECT_GT(found, 3000);
   EXPECT_GT(kept_cell, 1000) << "the walks should often stay in their cell";
+
+  // A lookup filled on one target and given to another is filled afresh.
+  PointToPlaneTarget other;
+  other.build(sampleScene(5), PointToPlaneParams());
+  int compared = 0;
+  for (std::size_t i = 0; i < points.size(); i += 97) {
+    PointToPlaneTarget::CellLookup lookup;
+    Eigen::Vector3d p1, n1, p_fresh, n_fresh;
+    target.nearest(points[i], 1.0, p1, n1, lookup);
+    const bool fresh = other.nearest(points[i], 1.0, p_fresh, n_fresh);
+    Eigen::Vector3d p_kept, n_kept;
+    ASSERT_EQ(other.nearest(points[i], 1.0, p_kept, n_kept, lookup), fresh);
+    if (fresh) {
+      ++compared;
+      ASSERT_EQ(p_kept, p_fresh) << "point " << i;
+    }
+  }
+  EXPECT_GT(compared, 10);
 }
 
 /// A source prepared with its points' times (a raw sweep) keeps the planes of the one

@@ -170,9 +170,10 @@ public:
   /// and the slots of the 27 cells around it, each looked up when first needed. Between
   /// two Gauss-Newton iterations a source point moves by millimetres and nearly always
   /// stays in its cell, so the next search skips the hash look-ups (most of its time).
-  /// Valid for the target that filled it only.
+  /// Given to another target, it is filled afresh.
   struct CellLookup
   {
+    const void* target = nullptr;           ///< the index that filled it
     std::uint64_t cell = ~std::uint64_t(0); ///< packed cell key; none yet
     std::array<int, 27> slots{};            ///< kUnknown, -1 (empty) or a cell's slot
   };
