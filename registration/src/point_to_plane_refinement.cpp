@@ -45,6 +45,9 @@ PointToPlaneParams::isValid(std::string* why) const
     reason = "max_source_points must be >= 0, got " + std::to_string(max_source_points);
   else if (threads < 1 || threads > 2)
     reason = "threads must be 1 or 2, got " + std::to_string(threads);
+  else if (!(degeneracy_min_ratio >= 0.0 && degeneracy_min_ratio < 1.0))
+    reason = "degeneracy_min_ratio must be in [0, 1), got " +
+             std::to_string(degeneracy_min_ratio);
   else if (max_iterations < 1)
     reason = "max_iterations must be >= 1, got " + std::to_string(max_iterations);
   else if (!finite_non_negative(convergence_translation_m))
@@ -325,9 +328,22 @@ refine(const PointVector& source_all,
     const PointToPlaneSystem system =
         normalEquations(pairs, plane_to_plane, scale_m, params, result.rmse_m);
     Vector6d dx;
-    if (!system.solve(dx)) {
-      result.message = "refinement failed: singular normal equations or non-finite update "
-                       "(degenerate geometry)";
+    if (params.degeneracy_min_ratio > 0.0) {
+      const PointToPlaneSystem::Step step =
+          system.solveDegeneracyAware(params.degeneracy_min_ratio);
+      result.degenerate_directions = step.degenerate_directions;
+      result.weakest_ratio = step.weakest_ratio;
+      dx = step.dx;
+    }
+    if (params.degeneracy_min_ratio <= 0.0 || result.degenerate_directions == 0) {
+      // Every direction constrained: the plain step, as without the option.
+      if (!system.solve(dx)) {
+        result.message = "refinement failed: singular normal equations or non-finite "
+                         "update (degenerate geometry)";
+        return result;
+      }
+    } else if (!dx.allFinite()) {
+      result.message = "refinement failed: non-finite update (degenerate geometry)";
       return result;
     }
     Eigen::Isometry3d update = Eigen::Isometry3d::Identity();

@@ -271,6 +271,80 @@ TEST(PointToPlaneRefinement, InvalidInputThrows)
   EXPECT_THROW(empty_target.build(PointVector(3, Eigen::Vector3d::Zero())), std::invalid_argument);
 }
 
+/// A corridor: ground and two long walls, nothing facing along its axis (x).
+PointVector
+sampleCorridor(std::uint32_t seed)
+{
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  PointVector points;
+  for (int i = 0; i < 40000; ++i) {
+    const double x = -30.0 + 60.0 * u(rng);
+    const double which = u(rng);
+    Eigen::Vector3d p = which < 0.5    ? Eigen::Vector3d(x, -6.0 + 12.0 * u(rng), 0.0)
+                        : which < 0.75 ? Eigen::Vector3d(x, 6.0, 5.0 * u(rng))
+                                       : Eigen::Vector3d(x, -6.0, 5.0 * u(rng));
+    points.push_back(p + Eigen::Vector3d(noise(rng), noise(rng), noise(rng)));
+  }
+  return points;
+}
+
+TEST(PointToPlaneRefinement, DegeneracyAwareStepsKeepTheGuessAlongACorridor)
+{
+  const Eigen::Isometry3d T_true = makeTransform(0.5, -0.3, 2.0, {0.4, 0.2, 0.05});
+  PointToPlaneTarget target;
+  target.build(sampleCorridor(1), PointToPlaneParams());
+  const PointVector source = transformed(T_true.inverse(), sampleCorridor(2));
+  // The guess is 0.8 m off along the corridor and 0.3 m across it.
+  const Eigen::Isometry3d guess = Eigen::Translation3d(0.8, 0.3, 0.0) * T_true;
+  PointToPlaneParams params;
+  params.degeneracy_min_ratio = 0.002;
+  const auto r = pcl::rast::refinePointToPlane(source, target, guess, params);
+  ASSERT_TRUE(r.success) << r.message;
+  EXPECT_GE(r.degenerate_directions, 1);
+  EXPECT_LT(r.weakest_ratio, 0.002);
+  const Eigen::Vector3d off = r.T_target_source.translation() - T_true.translation();
+  EXPECT_NEAR(off.x(), 0.8, 0.05) << "the corridor's axis keeps the guess";
+  EXPECT_LT(std::abs(off.y()), 0.05) << "across it the walls correct the guess";
+  EXPECT_LT(std::abs(off.z()), 0.05);
+  EXPECT_LT(rotationErrorDeg(r.T_target_source, T_true), 0.2);
+
+  // Plain steps (the default) report nothing of the kind.
+  const auto plain =
+      pcl::rast::refinePointToPlane(source, target, guess, PointToPlaneParams());
+  EXPECT_EQ(plain.degenerate_directions, 0);
+  EXPECT_EQ(plain.weakest_ratio, 0.0);
+
+  // Where the scene constrains every direction, the result is the plain one, exactly.
+  const PointVector street = sampleScene(7);
+  PointToPlaneTarget street_target;
+  street_target.build(street, PointToPlaneParams());
+  const Eigen::Isometry3d street_guess = makeTransform(1.0, 0.5, 3.0, {0.3, -0.2, 0.1});
+  const auto a =
+      pcl::rast::refinePointToPlane(transformed(street_guess.inverse(), sampleScene(8)),
+                                    street_target,
+                                    street_guess * makeTransform(0, 0, 1, {0.2, 0.1, 0}),
+                                    params);
+  const auto b =
+      pcl::rast::refinePointToPlane(transformed(street_guess.inverse(), sampleScene(8)),
+                                    street_target,
+                                    street_guess * makeTransform(0, 0, 1, {0.2, 0.1, 0}),
+                                    PointToPlaneParams());
+  ASSERT_TRUE(a.success) << a.message;
+  EXPECT_EQ(a.degenerate_directions, 0);
+  EXPECT_GT(a.weakest_ratio, 0.002);
+  EXPECT_TRUE(a.T_target_source.matrix() == b.T_target_source.matrix());
+
+  PointToPlaneParams bad;
+  std::string why;
+  bad.degeneracy_min_ratio = -0.1;
+  EXPECT_FALSE(bad.isValid(&why));
+  EXPECT_NE(why.find("degeneracy_min_ratio"), std::string::npos);
+  bad.degeneracy_min_ratio = std::nan("");
+  EXPECT_FALSE(bad.isValid(&why));
+}
+
 /// Two threads (PointToPlaneParams::threads) prepare the same planes in the same order
 /// as one: each half's voxels merge in order of first appearance.
 TEST(PointToPlaneRefinement, TwoThreadsPrepareTheSameTarget)

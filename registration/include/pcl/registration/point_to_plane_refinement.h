@@ -87,6 +87,12 @@ struct PointToPlaneParams
   /// up to the summation order of the voxel sums. For a caller that has a core to spare
   /// (pcl_rast_localize); the SLAM's threads keep both cores busy already.
   int threads = 1;
+  /// Degeneracy-aware steps: an eigen-direction of the normal equations whose eigenvalue
+  /// is at most this share of the total weight (rotations in radians about the target's
+  /// origin) is not updated, so the pose keeps the guess's value along it (a corridor's
+  /// axis, which noise and plane-fitting artefacts would otherwise decide). 0: plain
+  /// steps, as before (bit-identical). See PointToPlaneResult::degenerate_directions.
+  double degeneracy_min_ratio = 0.0;
 
   /// \brief True when all values are in range; otherwise says why in *why (if given).
   bool
@@ -113,6 +119,11 @@ struct PointToPlaneResult
   double rmse_m = 0.0;
   /// Why it failed, or a short summary.
   std::string message;
+  /// With PointToPlaneParams::degeneracy_min_ratio > 0: eigen-directions of the last
+  /// iteration left at the guess (0: the scan constrained every direction), and the
+  /// smallest eigenvalue over the total weight.
+  int degenerate_directions = 0;
+  double weakest_ratio = 0.0;
 };
 
 /// \brief One point per occupied voxel (the first one met, a real measurement, as in
