@@ -310,6 +310,7 @@ run(int argc, char** argv)
 
   rast::SessionLocalizerParams localizer_params;
   rast::applySensorPreset(preset, localizer_params.odometry);
+  rast::applySensorPreset(preset, params);
   localizer_params.verification.min_appearance_score = place_min_score;
   localizer_params.verification.min_initial_inliers = place_min_initial;
   localizer_params.verification.min_inliers = place_min_inliers;
@@ -520,7 +521,9 @@ run(int argc, char** argv)
       {"tentative_by_alignment", params.confirm_tentative_by_alignment},
       {"tried", placements_tried}};
   summary["map_alignment"] = {
-      {"merged_keyframes_within_m", params.merged_keyframes_within_m}};
+      {"merged_keyframes_within_m", params.merged_keyframes_within_m},
+      {"target_voxel_m", params.alignment.target_voxel_size_m}, // the sensor preset's
+      {"degeneracy_min_ratio", params.alignment.degeneracy_min_ratio}};
   summary["lookahead"] = {{"on", !no_lookahead},
                           {"frames_prepared_ahead", prepared_ahead},
                           {"alignment_sources_prepared_ahead", alignment_ahead}};

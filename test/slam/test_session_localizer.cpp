@@ -64,12 +64,32 @@ struct MappedLoop
 };
 
 MappedLoop
-mapLoop(bool load_clouds = true, std::size_t mapped = 150)
+mapLoop(bool load_clouds = true,
+        std::size_t mapped = 150,
+        SensorModel sensor = SensorModel::kHdl64,
+        SensorPreset preset = SensorPreset::kHdl64)
 {
   MappedLoop m;
-  m.sim = pathSimulator(PathType::kLoop, 200, 0.25, 3);
+  if (sensor == SensorModel::kHdl64) {
+    m.sim = pathSimulator(PathType::kLoop, 200, 0.25, 3);
+  } else { // another sensor, in a harder world: sensor imperfections, rough ground,
+           // porous vegetation
+    LidarSimulatorParams sim_params;
+    sim_params.sensor = sensor;
+    sim_params.seed = 3;
+    sim_params.num_threads = 2;
+    sim_params.imperfections = true;
+    sim_params.world.rough_ground = true;
+    sim_params.world.porous_vegetation = true;
+    PathParams path;
+    path.type = PathType::kLoop;
+    path.num_frames = 200;
+    path.revisit_fraction = 0.25;
+    m.sim = std::make_unique<LidarSimulator>(sim_params, generatePath(path));
+  }
   SlamParams slam_params;
   slam_params.deterministic = true;
+  applySensorPreset(preset, slam_params.odometry);
   RastSlam slam(slam_params);
   for (std::size_t i = 0; i < mapped; ++i)
     slam.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
@@ -79,7 +99,7 @@ mapLoop(bool load_clouds = true, std::size_t mapped = 150)
   fs::remove_all(dir);
   pcl_rast_test::removeAtExit(dir);
   SessionInfo info;
-  info.sensor_preset = toString(SensorPreset::kHdl64);
+  info.sensor_preset = toString(preset);
   saveSession(slam, dir.string(), info);
 
   SessionLoadOptions options;
@@ -293,6 +313,62 @@ TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
 /// prepared while the frame before is aligned, which changes no pose. Tracked on the
 /// map within centimetres once placed; with the times left out, several times farther
 /// off.
+TEST(MapLocalization, ASixteenBeamMapIsAlignedToInCoarserPlanes)
+{
+  // A VLP-16 map: away from the sensor a key-frame's cloud holds few points per 0.3 m
+  // voxel (rings 2 deg apart), too few for the alignment's planes, and the map confirms
+  // no frame: each is placed anew by retrieval. The preset's 1 m voxels hold several
+  // rings (and its odometry runs on every frame, for the directions they leave open).
+  const MappedLoop m = mapLoop(true, 150, SensorModel::kVlp16, SensorPreset::kVlp16);
+  int localized[2] = {0, 0}, aligned[2] = {0, 0};
+  double rmse[2] = {0.0, 0.0};
+  for (const bool preset : {false, true}) {
+    MapLocalizationParams params;
+    if (preset)
+      applySensorPreset(SensorPreset::kVlp16, params);
+    MapLocalization localization(*m.localizer, m.odometry, params);
+    double sum_sq = 0.0;
+    for (std::size_t i = 160; i < 200; ++i) {
+      const LocalizationFrame f =
+          localization.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
+      const double error_m =
+          (f.T_world_lidar.translation() - m.truth(i).translation()).norm();
+      EXPECT_LT(error_m, 2.0) << "frame " << i << " (" << toString(f.status)
+                              << "): " << f.message;
+      if (f.status == LocalizationStatus::kLocalized) {
+        ++localized[preset];
+        aligned[preset] += f.placed ? 0 : 1; // the map confirmed the prediction
+        sum_sq += error_m * error_m;
+      }
+    }
+    rmse[preset] = std::sqrt(sum_sq / std::max(1, localized[preset]));
+  }
+  MapLocalizationParams vlp16;
+  applySensorPreset(SensorPreset::kVlp16, vlp16);
+  std::printf("simulated VLP-16 second pass, 40 frames: %d localized, %d of them aligned "
+              "to the map (RMSE %.3f m, the map's error included) with 0.3 m alignment "
+              "voxels; %d and %d (RMSE %.3f m) with the preset's %.1f m\n",
+              localized[0],
+              aligned[0],
+              rmse[0],
+              localized[1],
+              aligned[1],
+              rmse[1],
+              vlp16.alignment.target_voxel_size_m);
+  EXPECT_GE(localized[1], 38);
+  EXPECT_GE(aligned[1], 35) << "the map confirms the frames it tracks";
+  EXPECT_LT(aligned[0], aligned[1] - 10);
+  EXPECT_LT(rmse[1], rmse[0] + 0.05);
+  // The other presets keep the alignment as it is.
+  for (const SensorPreset other :
+       {SensorPreset::kHdl64, SensorPreset::kOs1_64, SensorPreset::kOs0_128}) {
+    MapLocalizationParams p;
+    applySensorPreset(other, p);
+    EXPECT_EQ(p.alignment.target_voxel_size_m,
+              MapLocalizationParams().alignment.target_voxel_size_m);
+  }
+}
+
 TEST(MapLocalization, RawSweepsAreAlignedWithTheirSourcesPreparedAhead)
 {
   const MappedLoop m = mapLoop(true, 40);
