@@ -714,12 +714,7 @@ struct MapLocalization::Impl
       std::string why;
       std::optional<Alignment> a =
           alignToMap([&]() -> const Source& { return source; }, predicted, why, &scratch);
-      // Moved back from a placement, the prediction is no measurement of its own: it
-      // cannot stand for a direction the scan does not constrain.
-      if (a && a->degenerate_directions > 0) {
-        why = a->target + ": " + unconstrained(*a);
-        a.reset();
-      }
+      refuseUnconstrained(a, why); // moved back from a placement
       if (a) {
         if (std::string worse = suddenlyWorse(a->rmse_m, rmse); !worse.empty()) {
           why = a->target + ": " + worse;
@@ -852,11 +847,16 @@ struct MapLocalization::Impl
     return std::nullopt;
   }
 
-  /// Why an alignment with directions the scan does not constrain confirms nothing.
-  static std::string unconstrained(const Alignment& a)
+  /// Where the prediction is no measurement of its own (moved back from a placement, or
+  /// a tentative placement moved on by the odometry), it cannot stand for a direction
+  /// the scan does not constrain: such an alignment is refused, and \a why says so.
+  static void refuseUnconstrained(std::optional<Alignment>& a, std::string& why)
   {
-    return std::to_string(a.degenerate_directions) +
-           " direction(s) the scan does not constrain";
+    if (!a || a->degenerate_directions == 0)
+      return;
+    why = a->target + ": " + std::to_string(a->degenerate_directions) +
+          " direction(s) the scan does not constrain";
+    a.reset();
   }
 
   /// The refinement \a r of the scan to a target whose frame is \a T_world_target
@@ -1078,11 +1078,7 @@ struct MapLocalization::Impl
     std::optional<Alignment> a = alignToMap(scan, moved, why);
     if (!a)
       a = alignToNearestTogether(scan, moved, why);
-    // What a tentative placement lacks is confirmation in every direction.
-    if (a && a->degenerate_directions > 0) {
-      why = a->target + ": " + unconstrained(*a);
-      a.reset();
-    }
+    refuseUnconstrained(a, why); // what a tentative placement lacks is confirmation
     const std::size_t ago = frames - recent_placement->frame;
     if (!a) {
       how = "the tentative placement " + std::to_string(ago) +
