@@ -493,13 +493,21 @@ TEST(MapLocalization, TentativePlacementsAreTakenWhenTwoScansAgree)
     }
   }
 
-  // A map alignment that cannot confirm (every source point must pair) and placements
-  // that cannot agree: nothing is taken, and each frame says why the confirmation
-  // failed.
-  {
+  // Placements that cannot agree, and a map alignment that cannot confirm: nothing is
+  // taken, and each frame says why the confirmation failed. Either every source point
+  // must pair, or the alignment keeps a direction at its prediction: there the
+  // prediction is the tentative placement moved by the odometry, which is what wants
+  // confirming. A share of half the weight leaves at least one translation direction
+  // under it in any scene (the three share the weight between them).
+  for (const bool degenerate : {false, true}) {
     MapLocalizationParams loc_params;
-    loc_params.alignment.min_overlap_ratio = 1.0;
     loc_params.agree_m = 1e-6;
+    if (degenerate)
+      loc_params.alignment.degeneracy_min_ratio = 0.5;
+    else
+      loc_params.alignment.min_overlap_ratio = 1.0;
+    const std::string why = degenerate ? "direction(s) the scan does not constrain)"
+                                       : "of the source points paired";
     MapLocalization localization(strict, m.odometry, loc_params);
     for (std::size_t i = 160; i < 164; ++i) {
       const LocalizationFrame f =
@@ -512,7 +520,7 @@ TEST(MapLocalization, TentativePlacementsAreTakenWhenTwoScansAgree)
                     "the tentative placement 1 frame before not confirmed (key-frame"),
                 std::string::npos)
           << "frame " << i << ": " << f.message;
-      EXPECT_NE(f.message.find("of the source points paired"), std::string::npos)
+      EXPECT_NE(f.message.find(why), std::string::npos)
           << "frame " << i << ": " << f.message;
     }
   }
@@ -901,6 +909,37 @@ TEST(MapLocalization, FramesBeforeAPlacementAreLocalizedBackwards)
       (backtrack == 0 ? as_returned_without : as_returned_with.emplace_back()) =
           as_returned;
   }
+  // An alignment that keeps a direction at its prediction does not localize a frame
+  // backwards: there the prediction is the placement moved back by the odometry. The
+  // placement and the frames after it are as before (the tracked frames take such
+  // alignments); the backtracking stops at the first frame and says why.
+  {
+    MapLocalizationParams params;
+    params.placement_backoff_after = 6;
+    params.placement_every = 9;
+    params.background_placement_lag = 0;
+    params.backtrack_frames = 20;
+    params.alignment.degeneracy_min_ratio = 0.5; // at least one direction, see above
+    MapLocalization localization(*m.localizer, m.odometry, params);
+    int placed_at = -1;
+    for (const OdometryInput& s : drive) {
+      const LocalizationFrame f =
+          localization.addScan(s.cloud, s.timestamp_s, s.frame_index, s.point_times_s);
+      if (!f.placed || placed_at >= 0)
+        continue;
+      placed_at = static_cast<int>(s.frame_index);
+      EXPECT_TRUE(f.backtracked_frames.empty()) << f.message;
+      EXPECT_NE(
+          f.message.find("(stopped at frame " + std::to_string(placed_at - 1) + ": "),
+          std::string::npos)
+          << f.message;
+      EXPECT_NE(f.message.find("direction(s) the scan does not constrain)"),
+                std::string::npos)
+          << f.message;
+    }
+    EXPECT_EQ(placed_at, 23);
+  }
+
   // As the frames came, backtracking or not: the same poses (its alignment targets
   // stay out of the cache the frames after the placement use).
   ASSERT_EQ(as_returned_with.size(), 2u);
