@@ -49,10 +49,11 @@ applySensorPreset(SensorPreset preset, MapLocalizationParams& params)
     // (simulated 05 world, seed 101, predicted by the map's velocity).
     params.alignment.target_voxel_size_m = 1.0;
     // Those planes leave a street's axis unconstrained on many frames (weakest
-    // direction 0.1 % of the weight, against 2-8 % for an HDL-64 at 0.3 m): the pose
-    // keeps the prediction there, and the odometry, run on every frame, carries the
-    // motion along it. From the map's velocity the pose stopped within a few frames
-    // (tuning seed 42: 0.03-0.15 m a frame at 1.07 m/frame).
+    // direction 0.1 % of the weight, against 2-8 % for an HDL-64 at 0.3 m on most
+    // streets): the pose keeps the prediction there, and the odometry, run on every
+    // frame, carries the motion along it. From the map's velocity the pose stopped
+    // within a few frames (tuning seed 42: 0.03-0.15 m a frame at 1.07 m/frame).
+    params.alignment.degeneracy_min_ratio = 0.002;
     params.track_on_map = false;
     break;
   case SensorPreset::kHdl64:

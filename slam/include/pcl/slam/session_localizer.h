@@ -190,9 +190,9 @@ struct MapLocalizationParams
     p.max_correction_m = 2.0;
     p.max_correction_rad = 5.0 * 3.14159265358979323846 / 180.0;
     p.threads = 2; // the scan and new key-frames are prepared on both cores
-    // A direction the scan hardly constrains (a street's axis for a 16-beam scan)
-    // keeps the prediction: 0.1 % of the weight there, 2-8 % on an HDL-64's streets.
-    p.degeneracy_min_ratio = 0.002;
+    // Plain steps (degeneracy_min_ratio 0): the vlp16 preset keeps a direction the scan
+    // hardly constrains at the prediction, which the map's velocity cannot carry (see
+    // applySensorPreset).
     return p;
   }();
   /// ... with an RMS point-to-plane residual at most this [m] ...
@@ -343,8 +343,12 @@ struct MapLocalizationParams
 /// sensor's key-frame clouds hold few points per 0.3 m voxel away from the sensor (rings
 /// 2 deg apart), too few for the map alignment's planes: it fits them in 1 m voxels
 /// (alignment.target_voxel_size_m). Those leave a street's axis unconstrained on many
-/// frames, so the odometry runs on every frame (track_on_map false) and carries the pose
-/// along it (doc/session.md, "Session 43"). The other presets change nothing.
+/// frames (0.1 % of the weight): such a direction keeps the prediction
+/// (alignment.degeneracy_min_ratio 0.002), and the odometry runs on every frame
+/// (track_on_map false) and carries the pose along it (doc/session.md, "Session 43").
+/// The other presets change nothing: with the map's velocity as the prediction, a kept
+/// direction slowed an HDL-64's pose on a street of weak structure until it was 2-29 m
+/// off, where the plain step had followed it ("Session 44").
 void applySensorPreset(SensorPreset preset, MapLocalizationParams& params);
 
 /// \brief One localized frame.
