@@ -203,6 +203,8 @@ run(int argc, char** argv)
   // placements, between passes that share less, at the risk of a wrong one.
   const rast::SessionLocalizerParams localizer_defaults;
   const rast::LoopDetectorParams& placement_defaults = localizer_defaults.verification;
+  // The inlier thresholds' defaults are the session's sensor preset's, known once the
+  // session is read: these are only the values shown.
   int place_min_score = placement_defaults.min_appearance_score;
   int place_min_initial = placement_defaults.min_initial_inliers;
   int place_min_inliers = placement_defaults.min_inliers;
@@ -210,9 +212,10 @@ run(int argc, char** argv)
               "placement: appearance votes a key-frame needs to be verified",
               &place_min_score);
   args.addInt("place-min-initial",
-              "placement: RANSAC inliers of the first (ratio-test) matches", &place_min_initial);
+              "placement: RANSAC inliers of the first (ratio-test) matches (vlp16: 8)",
+              &place_min_initial);
   args.addInt("place-min-inliers",
-              "placement: RANSAC inliers after guided matching",
+              "placement: RANSAC inliers after guided matching (vlp16: 30)",
               &place_min_inliers);
   int prior_candidates = localizer_defaults.max_prior_candidates;
 
@@ -309,11 +312,13 @@ run(int argc, char** argv)
                reader.numFiles(), reader.size());
 
   rast::SessionLocalizerParams localizer_params;
-  rast::applySensorPreset(preset, localizer_params.odometry);
+  rast::applySensorPreset(preset, localizer_params);
   rast::applySensorPreset(preset, params);
   localizer_params.verification.min_appearance_score = place_min_score;
-  localizer_params.verification.min_initial_inliers = place_min_initial;
-  localizer_params.verification.min_inliers = place_min_inliers;
+  if (args.given("place-min-initial"))
+    localizer_params.verification.min_initial_inliers = place_min_initial;
+  if (args.given("place-min-inliers"))
+    localizer_params.verification.min_inliers = place_min_inliers;
   localizer_params.max_prior_candidates = prior_candidates;
   localizer_params.odometry.dense.max_source_points = dense_points;
   std::string deskew_reason, deskew_timing;
@@ -506,8 +511,8 @@ run(int argc, char** argv)
                        {"reason", deskew_reason}};
   summary["placement"] = {
       {"min_score", place_min_score},
-      {"min_initial_inliers", place_min_initial},
-      {"min_inliers", place_min_inliers},
+      {"min_initial_inliers", localizer_params.verification.min_initial_inliers},
+      {"min_inliers", localizer_params.verification.min_inliers},
       {"track_on_map", params.track_on_map},
       {"backoff_after", params.placement_backoff_after},
       {"every", params.placement_every},

@@ -3,13 +3,12 @@
 
 #include "test_data.h"
 
+#include <gtest/gtest.h>
+#include <iostream>
+#include <pcl/io/sequence_reader.h>
 #include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/odometry.h>
-#include <pcl/io/sequence_reader.h>
-
-#include <gtest/gtest.h>
-
-#include <iostream>
+#include <pcl/slam/session_localizer.h>
 #include <stdexcept>
 #include <string>
 
@@ -67,6 +66,38 @@ TEST(SensorPreset, PresetsChangeWhatTheySay)
   applySensorPreset(SensorPreset::kVlp16, v);
   EXPECT_LT(v.min_feature_inliers, defaults.min_feature_inliers);
   EXPECT_TRUE(v.isValid());
+}
+
+/// The localizer's preset: the odometry's, and for a 16-beam sensor placements with
+/// fewer inliers (a tentative placement still below a full one).
+TEST(SensorPreset, ASixteenBeamPlacementNeedsFewerInliers)
+{
+  const SessionLocalizerParams defaults;
+  for (const auto preset : {SensorPreset::kHdl64,
+                            SensorPreset::kVlp16,
+                            SensorPreset::kOs1_64,
+                            SensorPreset::kOs0_128}) {
+    SessionLocalizerParams p;
+    applySensorPreset(preset, p);
+    OdometryParams odometry;
+    applySensorPreset(preset, odometry);
+    EXPECT_EQ(p.odometry.min_feature_inliers, odometry.min_feature_inliers)
+        << toString(preset);
+    EXPECT_EQ(p.odometry.ground.level_cloud, odometry.ground.level_cloud)
+        << toString(preset);
+    EXPECT_EQ(p.odometry.dense.map_voxel_size_m, odometry.dense.map_voxel_size_m)
+        << toString(preset);
+    EXPECT_TRUE(p.isValid()) << toString(preset);
+    if (preset != SensorPreset::kVlp16) {
+      EXPECT_EQ(p.verification.min_initial_inliers,
+                defaults.verification.min_initial_inliers);
+      EXPECT_EQ(p.verification.min_inliers, defaults.verification.min_inliers);
+      continue;
+    }
+    EXPECT_EQ(p.verification.min_initial_inliers, 8);
+    EXPECT_EQ(p.verification.min_inliers, 30);
+    EXPECT_LT(p.tentative_min_inliers, p.verification.min_inliers);
+  }
 }
 
 TEST(SensorPreset, GuessesTheSimulatedSensors)

@@ -107,7 +107,7 @@ mapLoop(bool load_clouds = true,
   Session session = loadSession(dir.string(), options);
   m.dir = dir;
   SessionLocalizerParams params;
-  applySensorPreset(sensorPresetFromName(session.info.sensor_preset), params.odometry);
+  applySensorPreset(sensorPresetFromName(session.info.sensor_preset), params);
   m.odometry = params.odometry;
   m.localizer = std::make_unique<SessionLocalizer>(std::move(session), params);
   m.T0_inv = m.sim->sensorPose(0).inverse();

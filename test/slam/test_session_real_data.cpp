@@ -61,7 +61,7 @@ mapEvenScans(const SequenceReader& reader)
   saveSession(slam, dir.string(), info);
   Session session = loadSession(dir.string());
   SessionLocalizerParams params;
-  applySensorPreset(sensorPresetFromName(session.info.sensor_preset), params.odometry);
+  applySensorPreset(sensorPresetFromName(session.info.sensor_preset), params);
   m.odometry = params.odometry;
   m.localizer = std::make_unique<SessionLocalizer>(std::move(session), params);
   return m;

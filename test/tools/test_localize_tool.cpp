@@ -91,7 +91,8 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_GE(summary["frames_localized"].get<int>(), 29);
   EXPECT_FALSE(summary["initial_pose_given"].get<bool>());
   EXPECT_TRUE(summary["jumps"].empty());
-  EXPECT_EQ(summary["placement"]["min_inliers"].get<int>(), 40);
+  EXPECT_EQ(summary["placement"]["min_inliers"].get<int>(), 40); // the hdl64 preset's
+  EXPECT_EQ(summary["placement"]["min_initial_inliers"].get<int>(), 12);
   EXPECT_TRUE(summary["placement"]["track_on_map"].get<bool>());
   EXPECT_TRUE(summary["lookahead"]["on"].get<bool>());
   EXPECT_EQ(summary["map_alignment"]["merged_keyframes_within_m"].get<double>(), 10.0);
@@ -124,7 +125,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   ASSERT_EQ(run("-session " + quoted(m.session) + " -input " + quoted(m.scans) +
                 " -output " + quoted(out2) +
                 " -first 10 -last 19 -software-render -quiet -no-merged-keyframes "
-                "-initial-pose '" +
+                "-place-min-initial 11 -place-min-inliers 38 -initial-pose '" +
                 pose + "'"),
             0)
       << readFile(log_);
@@ -132,6 +133,9 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_TRUE(summary2["initial_pose_given"].get<bool>());
   EXPECT_EQ(summary2["frames_localized"].get<int>(), 10);
   EXPECT_EQ(summary2["map_alignment"]["merged_keyframes_within_m"].get<double>(), 0.0);
+  // Given thresholds replace the sensor preset's.
+  EXPECT_EQ(summary2["placement"]["min_initial_inliers"].get<int>(), 11);
+  EXPECT_EQ(summary2["placement"]["min_inliers"].get<int>(), 38);
 
   // Without the odometry's look-ahead: the same poses (MapLocalization's own test
   // compares them off the map, where the odometry runs on every frame).

@@ -67,6 +67,16 @@ struct SessionLocalizerParams
   bool isValid(std::string* why = nullptr) const;
 };
 
+/// \brief Change \a params as \a preset suggests (other members stay): the odometry's
+/// preset (applySensorPreset(SensorPreset, OdometryParams&)) and the placement
+/// thresholds. A 16-beam scan's raster holds about a quarter of the corners of a 64-beam
+/// one, and a true revisit pairs fewer of them: for `vlp16` a placement needs 8 inliers
+/// of the first RANSAC instead of 12 (verification.min_initial_inliers) and 30 guided
+/// inliers instead of 40 (verification.min_inliers; 20-29 make a tentative one). The
+/// dense check and the other verification steps are unchanged (doc/session.md,
+/// "Session 44"). The other presets change only the odometry.
+void applySensorPreset(SensorPreset preset, SessionLocalizerParams& params);
+
 /// \brief Where the scan is believed to be on the map, and how far off that may be: the
 /// pose dead-reckoned by the odometry since the map last confirmed one (MapLocalization).
 struct PlacementPrior
@@ -109,7 +119,7 @@ struct Placement
 /// pcl::rast::Session session = pcl::rast::loadSession("session");
 /// pcl::rast::SessionLocalizerParams params;
 /// pcl::rast::applySensorPreset(
-///     pcl::rast::sensorPresetFromName(session.info.sensor_preset), params.odometry);
+///     pcl::rast::sensorPresetFromName(session.info.sensor_preset), params);
 /// pcl::rast::SessionLocalizer localizer(std::move(session), params);
 /// const pcl::rast::Placement p = localizer.place(scan);
 /// if (p.success) use(p.T_world_lidar);
