@@ -17,7 +17,6 @@
 #include <pcl/slam/session.h>
 #include <pcl/slam/session_localizer.h>
 #include <string>
-#include <unistd.h>
 #include <vector>
 
 // This file's names stay its own: a test program compiles several test files as
@@ -52,10 +51,8 @@ mapEvenScans(const SequenceReader& reader)
 
   RealMap m;
   m.even = slam.framePoses();
-  const fs::path dir = fs::temp_directory_path() / "pcl_rast_test" /
-                       ("session_real_data_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  pcl_rast_test::removeAtExit(dir);
+  const fs::path dir = pcl_rast_test::makeTempDir("session_real_data") / "session";
+  pcl_rast_test::removeAtExit(dir.parent_path());
   SessionInfo info;
   info.sensor_preset = toString(SensorPreset::kHdl64);
   saveSession(slam, dir.string(), info);
