@@ -19,6 +19,7 @@
 #include "prefetcher.h"
 #include "sensor_choice.h"
 #include "stop_signals.h"
+#include "tracking_report.h"
 
 #include <algorithm>
 #include <cmath>
@@ -217,6 +218,7 @@ run(int argc, char** argv)
   std::size_t num_tracked = 0;
   std::size_t frames_degenerate = 0;
   DeskewTally tally;
+  DegradedStretches degraded;
   std::optional<ProgressBar> bar;
   if (!quiet)
     bar.emplace("Odometry", reader.size());
@@ -288,6 +290,7 @@ run(int argc, char** argv)
         << (r.deskew_second_pass ? "+2" : "") << ',' << r.dense_degenerate_directions
         << ',' << (r.extracted_ahead ? 1 : 0) << '\n';
     tally.add(r);
+    degraded.add(r);
     frames_degenerate += r.dense_degenerate_directions > 0 ? 1 : 0;
     if (bar)
       bar->update(i + 1);
@@ -343,6 +346,7 @@ run(int argc, char** argv)
                        {"time_field_warnings", tally.time_field_warnings}};
   summary["params"] = {{"visibility_margin_m", params.visibility_margin_m},
                        {"lookahead", !no_lookahead}};
+  summary.update(degraded.toJson());
   summary["max_rotation_error"] = rast::maxRotationError(poses);
   summary["error"] = run_error ? nlohmann::json(error_message) : nlohmann::json(nullptr);
   outputs.publish(summary); // summary.json last: it lists the files of this run
@@ -351,6 +355,8 @@ run(int argc, char** argv)
     counts += " " + name + "=" + std::to_string(count);
   std::fprintf(stderr, "Wrote %s [done : %zu frames, %zu key-frames, median %.1f ms/frame,%s]\n",
                output.c_str(), poses.size(), odometry.numKeyFrames(), median, counts.c_str());
+  if (const std::string warning = degraded.warning("pcl_rast_odometry"); !warning.empty())
+    std::fprintf(stderr, "%s\n", warning.c_str());
   if (run_error) {
     std::fprintf(stderr, "pcl_rast_odometry: error: %s (the frames before it were written)\n",
                  error_message.c_str());

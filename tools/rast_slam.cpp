@@ -16,22 +16,9 @@
 #include "cli.h"
 #include "output_set.h"
 #include "prefetcher.h"
-#include "stop_signals.h"
-#include <pcl/visualization/map_render.h>
 #include "sensor_choice.h"
-
-#include <pcl/segmentation/sac_ground_removal.h>
-#include <pcl/simulation/lidar_simulator.h>
-#include <pcl/io/pose_io.h>
-#include <pcl/slam/rast_slam.h>
-#include <pcl/io/sequence_reader.h>
-#include <pcl/slam/session.h>
-#include <pcl/slam/session_localizer.h>
-#include <pcl/slam/session_merge.h>
-#include <pcl/slam/slam_map.h>
-#include <pcl/evaluation/trajectory_evaluation.h>
-
-#include <nlohmann/json.hpp>
+#include "stop_signals.h"
+#include "tracking_report.h"
 
 #include <algorithm>
 #include <atomic>
@@ -44,7 +31,19 @@
 #include <iostream>
 #include <limits>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <optional>
+#include <pcl/evaluation/trajectory_evaluation.h>
+#include <pcl/io/pose_io.h>
+#include <pcl/io/sequence_reader.h>
+#include <pcl/segmentation/sac_ground_removal.h>
+#include <pcl/simulation/lidar_simulator.h>
+#include <pcl/slam/rast_slam.h>
+#include <pcl/slam/session.h>
+#include <pcl/slam/session_localizer.h>
+#include <pcl/slam/session_merge.h>
+#include <pcl/slam/slam_map.h>
+#include <pcl/visualization/map_render.h>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -539,6 +538,11 @@ run(int argc, char** argv)
   json skipped = json::array();
   std::size_t processed = 0;
   pcl_rast_tools::DeskewTally tally;
+  pcl_rast_tools::DegradedStretches degraded;
+  const auto record = [&](const rast::OdometryFrameResult& r) {
+    tally.add(r);
+    degraded.add(r);
+  };
   // An error after frames were processed ends the run, not its results: what was
   // processed is written below, summary.json names the error, and the exit code is 3.
   std::exception_ptr run_error;
@@ -565,21 +569,21 @@ run(int argc, char** argv)
           const pcl_rast_tools::ReadItem* next =
               no_lookahead ? nullptr : prefetcher.peek();
           if (next && next->ok && !next->frame.cloud->empty())
-            tally.add(slam.addScan(item.frame.cloud,
-                                   item.timestamp_s,
-                                   item.sequence_index,
-                                   item.frame.point_times_s,
-                                   {next->frame.cloud,
-                                    next->timestamp_s,
-                                    next->sequence_index,
-                                    next->frame.point_times_s},
-                                   item.path));
+            record(slam.addScan(item.frame.cloud,
+                                item.timestamp_s,
+                                item.sequence_index,
+                                item.frame.point_times_s,
+                                {next->frame.cloud,
+                                 next->timestamp_s,
+                                 next->sequence_index,
+                                 next->frame.point_times_s},
+                                item.path));
           else
-            tally.add(slam.addScan(item.frame.cloud,
-                                   item.timestamp_s,
-                                   item.sequence_index,
-                                   item.frame.point_times_s,
-                                   item.path));
+            record(slam.addScan(item.frame.cloud,
+                                item.timestamp_s,
+                                item.sequence_index,
+                                item.frame.point_times_s,
+                                item.path));
         }
       }
       else {
@@ -795,6 +799,7 @@ run(int argc, char** argv)
     summary["memory_mb"][part] = bytes / (1024.0 * 1024.0);
   summary["loop_edges"] = loop_json;
   summary["tracking_status"] = stats.tracking_status;
+  summary.update(degraded.toJson());
   json timing;
   for (const auto& [stage, t] : stats.timing)
     timing[stage] = timingJson(t);
@@ -918,6 +923,8 @@ run(int argc, char** argv)
   if (summary.contains("ate_rmse_m") && !summary["ate_rmse_m"].is_null())
     std::cerr << ", ATE RMSE " << summary["ate_rmse_m"].get<double>() << " m";
   std::cerr << "\n";
+  if (const std::string warning = degraded.warning("pcl_rast_slam"); !warning.empty())
+    std::cerr << warning << "\n";
   if (run_error) {
     std::cerr << "pcl_rast_slam: error: " << error_message
               << " (the results up to it were written)\n";

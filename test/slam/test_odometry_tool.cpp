@@ -3,19 +3,18 @@
 /// input frame, first pose identity), timing.csv columns, unreadable frames skipped
 /// with the constant-velocity pose, exit codes on bad arguments.
 
-#include <pcl/simulation/lidar_simulator.h>
-#include <pcl/io/pose_io.h>
-#include <pcl/io/sequence_reader.h>
-
 #include "test_data.h"
-
-#include <gtest/gtest.h>
-#include <nlohmann/json.hpp>
+#include "tracking_report.h"
 
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <pcl/io/pose_io.h>
+#include <pcl/io/sequence_reader.h>
+#include <pcl/simulation/lidar_simulator.h>
 #include <sstream>
 #include <string>
 #include <sys/wait.h>
@@ -126,6 +125,21 @@ TEST_F(OdometryTool, WritesPosesAndTimingForEveryFrame)
   EXPECT_EQ(summary["frames_tracked"].get<int>(), 11);
   EXPECT_TRUE(summary["error"].is_null());
   EXPECT_LE(summary["max_rotation_error"].get<double>(), 1e-9);
+  // A street tracked by features: no degraded stretch to warn about.
+  // summary.json counts timing.csv's degraded rows (column 12), skipped scans left out.
+  int degraded_rows = 0;
+  for (std::size_t k = 1; k < timing.size(); ++k) {
+    std::vector<std::string> cells;
+    std::stringstream row(timing[k]);
+    for (std::string cell; std::getline(row, cell, ',');)
+      cells.push_back(cell);
+    ASSERT_GT(cells.size(), 12u) << timing[k];
+    degraded_rows += cells[1] != "skipped" && cells[12] == "1";
+  }
+  EXPECT_EQ(summary["degraded_frames"].get<int>(), degraded_rows);
+  EXPECT_LT(summary["longest_degraded_stretch"]["frames"].get<std::size_t>(),
+            pcl_rast_tools::kDegradedStretchWarnFrames);
+  EXPECT_EQ(readAll(log_).find("tracked degraded"), std::string::npos) << readAll(log_);
   // Atomic writes leave no temporaries behind.
   for (const auto& entry : fs::directory_iterator(out)) {
     const std::string ext = entry.path().extension().string();

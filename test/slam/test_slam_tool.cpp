@@ -92,10 +92,23 @@ TEST_F(SlamTool, WritesEveryOutputWithTheContractedContent)
   EXPECT_GT(map.size(), 1000u);
 
   const auto summary = nlohmann::json::parse(readFile(out / "summary.json"));
-  for (const char* key : {"frames", "skipped_frames", "keyframes", "loops_accepted",
-                          "loops_rejected", "timing_ms", "wall_s", "fps", "peak_rss_mb",
-                          "ate_rmse_m", "kitti_t_err_pct", "kitti_r_err_deg_per_100m"})
+  for (const char* key : {"frames",
+                          "skipped_frames",
+                          "keyframes",
+                          "loops_accepted",
+                          "loops_rejected",
+                          "timing_ms",
+                          "wall_s",
+                          "fps",
+                          "peak_rss_mb",
+                          "ate_rmse_m",
+                          "kitti_t_err_pct",
+                          "kitti_r_err_deg_per_100m",
+                          "degraded_frames",
+                          "longest_degraded_stretch"})
     EXPECT_TRUE(summary.contains(key)) << key;
+  EXPECT_LE(summary["longest_degraded_stretch"]["frames"].get<int>(),
+            summary["degraded_frames"].get<int>());
   EXPECT_EQ(summary["frames"].get<int>(), 40);
   ASSERT_EQ(summary["skipped_frames"].size(), 1u);
   EXPECT_EQ(summary["skipped_frames"][0]["frame"].get<int>(), 12);
