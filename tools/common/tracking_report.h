@@ -11,8 +11,8 @@
 namespace pcl_rast_tools {
 
 /// \brief A stretch of at least this many degraded frames in a row is warned about.
-/// Simulated drives the odometry tracks have stretches of at most 12 frames (HDL-64 and
-/// VLP-16, realistic settings), 58 on a highway with an HDL-64; a VLP-16 that lost the
+/// Simulated drives the odometry tracks have stretches of at most 11 frames (HDL-64 and
+/// VLP-16, realistic settings), 49 on KITTI 01 with an HDL-64; a VLP-16 that lost the
 /// speed on a highway had 438 (doc/odometry.md, "Degraded stretches").
 constexpr std::size_t kDegradedStretchWarnFrames = 100;
 
