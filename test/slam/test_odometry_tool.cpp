@@ -125,8 +125,8 @@ TEST_F(OdometryTool, WritesPosesAndTimingForEveryFrame)
   EXPECT_EQ(summary["frames_tracked"].get<int>(), 11);
   EXPECT_TRUE(summary["error"].is_null());
   EXPECT_LE(summary["max_rotation_error"].get<double>(), 1e-9);
-  // A street tracked by features: no degraded stretch to warn about.
-  // summary.json counts timing.csv's degraded rows (column 12), skipped scans left out.
+  // summary.json counts timing.csv's degraded rows (column 12), skipped scans left out;
+  // a street tracked by features has no degraded stretch to warn about.
   int degraded_rows = 0;
   for (std::size_t k = 1; k < timing.size(); ++k) {
     std::vector<std::string> cells;
