@@ -181,6 +181,9 @@ OdometryParams::isValid(std::string* why) const
   else if (!(dense_prior_ratio >= 0.0 && dense_prior_ratio < 1.0))
     reason =
         "dense_prior_ratio must be in [0, 1), got " + std::to_string(dense_prior_ratio);
+  else if (!(weak_feature_share >= 0.0 && weak_feature_share <= 1.0))
+    reason =
+        "weak_feature_share must be in [0, 1], got " + std::to_string(weak_feature_share);
   else if (!(prior_gate_accel_mps2 >= 0.0 && std::isfinite(prior_gate_accel_mps2)) ||
            !(prior_gate_angular_accel_dps2 >= 0.0 &&
              std::isfinite(prior_gate_angular_accel_dps2)))

@@ -420,10 +420,18 @@ struct Odometry::Impl
             gate.metres,
             gate.degrees};
   }
+  /// priorAnchored for weak features: within priorGate(frame) of a tracked prior the
+  /// anchor is moved OdometryParams::weak_feature_share of the way to their planar
+  /// motion, into \a T_world_anchor (which the options point to).
+  DenseOptions weakAnchored(const Frame& frame,
+                            const FeatureTrack& track,
+                            Pose3d& T_world_anchor) const;
   /// Weak features: a second dense fit from their planar part or the prior, and the
-  /// prior's fit where the scan cannot tell it from theirs.
+  /// prior's fit where the scan cannot tell it from theirs; \a anchored from
+  /// weakAnchored.
   void checkWeakFeatures(const Frame& frame,
                          const FeatureTrack& track,
+                         const DenseOptions& anchored,
                          DenseResult& dense,
                          OdometryFrameResult& result) const;
   /// Step 5 without features: dense ICP from motion hypotheses, accepted when well

@@ -336,10 +336,13 @@ Odometry::Impl::trackDense(const Frame& frame,
     return false;
   // Along the directions the scan does not constrain (a corridor's axis, an open field's
   // x, y and yaw) strong features set the pose; weak ones (a few posts of a guard rail,
-  // a passing car) do not, the constant-velocity prior does.
+  // a passing car) do not alone: the constant-velocity prior does, moved part of the
+  // way to them where they are near it (weak_feature_share).
   bool strong = inliers >= params.strong_feature_inliers;
+  Pose3d T_world_weak_anchor;
+  const DenseOptions weak_anchored = weakAnchored(frame, track, T_world_weak_anchor);
   const DenseOptions anchored =
-      strong ? DenseOptions{0.0, &track.T_world_features} : priorAnchored(frame);
+      strong ? DenseOptions{0.0, &track.T_world_features} : weak_anchored;
   DenseResult dense = registerToMap(
       frame.source, localMap(), track.T_world_features, params.dense, anchored);
   if (strong && velocity_tracked && dense.success && dense.degenerate_directions > 0 &&
@@ -390,7 +393,7 @@ Odometry::Impl::trackDense(const Frame& frame,
     }
   }
   if (!strong && !prior_won)
-    checkWeakFeatures(frame, track, dense, result);
+    checkWeakFeatures(frame, track, weak_anchored, dense, result);
   keepDenseStats(dense, result);
   if (!dense.success) {
     result.degraded = true;
@@ -482,9 +485,38 @@ Odometry::Impl::withinGate(const Frame& frame,
   return diff.translation().norm() <= gate.metres && angleDeg(diff) <= gate.degrees;
 }
 
+DenseOptions
+Odometry::Impl::weakAnchored(const Frame& frame,
+                             const FeatureTrack& track,
+                             Pose3d& T_world_anchor) const
+{
+  DenseOptions options = priorAnchored(frame);
+  if (!(params.weak_feature_share > 0.0) || !velocity_tracked ||
+      params.ground.level_cloud || !nearPrior(frame, track.T_world_features))
+    return options;
+  // The prior alone holds the speed on an open road, where the scan does not
+  // constrain it; the share moves it toward the features' x, y and yaw (the prior's
+  // height, roll and pitch: doc/odometry.md), blended in the frame's own motion. A
+  // steady acceleration then lags by a dt^2 (1 - share) / share, and an aliased match
+  // pulls by the share of its error.
+  const double share = params.weak_feature_share;
+  const Pose3d d_p = T_world_last.inverse() * frame.T_world_prior;
+  const Pose3d d_f =
+      T_world_last.inverse() *
+      planarFromFeatures(T_world_last, track.T_world_features, frame.T_world_prior);
+  const Eigen::Quaterniond q_p(d_p.rotation()), q_f(d_f.rotation());
+  Pose3d d = Pose3d::Identity();
+  d.linear() = q_p.slerp(share, q_f).toRotationMatrix();
+  d.translation() = d_p.translation() + share * (d_f.translation() - d_p.translation());
+  T_world_anchor = T_world_last * d;
+  options.T_world_anchor = &T_world_anchor;
+  return options;
+}
+
 void
 Odometry::Impl::checkWeakFeatures(const Frame& frame,
                                   const FeatureTrack& track,
+                                  const DenseOptions& anchored,
                                   DenseResult& dense,
                                   OdometryFrameResult& result) const
 {
@@ -494,7 +526,6 @@ Odometry::Impl::checkWeakFeatures(const Frame& frame,
   // features' planar motion with the prior's height, roll and pitch (near the prior, a
   // level mount) or from the prior itself; the better paired one wins.
   const Pose3d& T_world_prior = frame.T_world_prior;
-  const DenseOptions anchored = priorAnchored(frame);
   const bool near_prior = nearPrior(frame, track.T_world_features);
   const bool second_from_features = near_prior && !params.ground.level_cloud;
   const Pose3d T_second =

@@ -214,6 +214,9 @@ TEST(OdometryParams, DefaultsAreValidAndBadValuesAreRejected)
   params.dense_prior_ratio = 1.0;
   expectInvalid(params, "dense_prior_ratio");
   params = rast::OdometryParams();
+  params.weak_feature_share = 1.5;
+  expectInvalid(params, "weak_feature_share must be in [0, 1], got 1.5");
+  params = rast::OdometryParams();
   params.visibility_margin_m = -0.5;
   expectInvalid(params, "visibility_margin_m");
   params = rast::OdometryParams();

@@ -65,6 +65,11 @@ TEST(SensorPreset, PresetsChangeWhatTheySay)
   OdometryParams v;
   applySensorPreset(SensorPreset::kVlp16, v);
   EXPECT_LT(v.min_feature_inliers, defaults.min_feature_inliers);
+  // Its weak features are blended with the prior; the defaults' and the handheld's
+  // are not.
+  EXPECT_EQ(defaults.weak_feature_share, 0.0);
+  EXPECT_EQ(p.weak_feature_share, 0.0);
+  EXPECT_GT(v.weak_feature_share, 0.0);
   EXPECT_TRUE(v.isValid());
 }
 

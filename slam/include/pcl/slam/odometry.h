@@ -355,6 +355,15 @@ struct OdometryParams
   /// follows the prior instead of sliding, and a constrained one barely moves
   /// (doc/odometry.md). 0: off.
   double dense_prior_ratio = 0.003;
+  /// Weak features (fewer than strong_feature_inliers) within those gates of a tracked
+  /// prior: the dense step's anchor, which the directions the scan does not constrain
+  /// take and which dense_prior_ratio pulls toward, is the prior moved this share of
+  /// the way to their planar motion (x, y and yaw). 0 (the default): the prior alone.
+  /// The VLP-16 preset takes 0.25: with 10-25 inliers on its sparse raster, the prior
+  /// alone held a highway's speed at 1.42 m a frame while the car went to 2.1. An
+  /// HDL-64's weak features in a tunnel (lamps, doors) pull it astray instead
+  /// (doc/odometry.md). In [0, 1].
+  double weak_feature_share = 0.0;
   /// Two dense results the scan cannot tell apart: their RMS point-to-plane residuals
   /// differ by less than this [m] (about half the range noise). Where weak features
   /// and the prior end this close, the prior wins; where dense ICP slid this
@@ -417,8 +426,8 @@ SensorPreset sensorPresetFromName(const std::string& name);
 void applySensorPreset(SensorPreset preset, OdometryParams& params);
 /// \brief No vehicle-dynamics prior: the prior gates stay prior_gate_m / _deg and the
 /// dense step is not pulled to the prior (prior_gate_accel_mps2,
-/// prior_gate_angular_accel_dps2 and dense_prior_ratio 0), as the handheld preset has
-/// it.
+/// prior_gate_angular_accel_dps2, dense_prior_ratio and weak_feature_share 0), as the
+/// handheld preset has it.
 void disableVehiclePrior(OdometryParams& params);
 
 /// \brief What guessSensorPreset saw in a scan.
