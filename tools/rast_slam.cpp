@@ -465,8 +465,11 @@ run(int argc, char** argv)
     throw std::logic_error("sensor preset made invalid parameters: " + why);
   // The session's map indexed for placing the drive's key-frames on it (after the run).
   std::unique_ptr<rast::SessionLocalizer> localizer;
+  rast::SessionLocalizerParams localizer_params;
   if (prior) {
-    rast::SessionLocalizerParams localizer_params;
+    // The placement thresholds of the session's sensor (a VLP-16 places with fewer
+    // inliers), the odometry as set up above (flags included).
+    rast::applySensorPreset(preset, localizer_params);
     localizer_params.odometry = params.odometry;
     // The merge places every key-frame of the drive and was measured with the loop
     // closure's appearance score (session 21); the localization's lower one is not.
@@ -876,6 +879,10 @@ run(int argc, char** argv)
         {"merged_keyframes", merge->merged.keyframes.size()},
         {"merged_drives", merge->merged.drives.size()},
         {"keyframes_tried", merge->keyframes_tried},
+        {"placement",
+         {{"min_initial_inliers", localizer_params.verification.min_initial_inliers},
+          {"min_inliers", localizer_params.verification.min_inliers},
+          {"min_appearance_score", localizer_params.verification.min_appearance_score}}},
         {"placements", merge->loops.size()},
         {"loops_agreeing", merge->loops_agreeing},
         {"loops_used", merge->loops_used},

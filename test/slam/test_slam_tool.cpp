@@ -1,23 +1,20 @@
 /// The pcl_rast_slam command-line contract: output files, line counts, summary keys,
 /// corrupt scans skipped and listed, and clear errors (exit codes) on bad arguments.
 
-#include <pcl/simulation/lidar_simulator.h>
-#include <pcl/io/pose_io.h>
-#include <pcl/slam/session.h>
-
-#include <pcl/io/pcd_io.h>
-
-#include <gtest/gtest.h>
-
-#include <unistd.h>
-#include <nlohmann/json.hpp>
-
 #include "simulated_drive.h"
 #include "test_data.h"
 
 #include <filesystem>
 #include <fstream>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <pcl/io/pcd_io.h>
+#include <pcl/io/pose_io.h>
+#include <pcl/simulation/lidar_simulator.h>
+#include <pcl/slam/session.h>
+#include <pcl/slam/session_localizer.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 // This file's names stay its own: a test program compiles several test files as
 // one translation unit (test/CMakeLists.txt).
@@ -276,6 +273,37 @@ TEST_F(SlamTool, SavesASessionAndRefusesAFolderThatIsNotOne)
 /// An exception in the loop-closing thread mid-run (injected at its second key-frame)
 /// ends the run but does not lose it: every output is written for the frames processed,
 /// summary.json names the error, and the exit code is 3.
+/// A session's sensor preset sets the merge's placement thresholds: a VLP-16 session
+/// places the drive's key-frames with its 8 / 30 inliers, not the HDL-64's 12 / 40.
+TEST_F(SlamTool, AMergePlacesWithTheSessionSensorsThresholds)
+{
+  const fs::path seq = sequenceDir();
+  const fs::path first = dir_ / "first", second = dir_ / "second";
+  const fs::path session = dir_ / "session";
+  const std::string input = "-input '" + seq.string() + "' -software-render -quiet";
+  ASSERT_EQ(runTool(input + " -last 14 -sensor vlp16 -output '" + first.string() +
+                        "' -save-session '" + session.string() + "'",
+                    log_),
+            0)
+      << readFile(log_);
+  ASSERT_EQ(runTool(input + " -first 10 -last 19 -output '" + second.string() +
+                        "' -session '" + session.string() + "'",
+                    log_),
+            0)
+      << readFile(log_);
+  const auto summary = nlohmann::json::parse(readFile(second / "summary.json"));
+  EXPECT_EQ(summary["params"]["sensor"], "vlp16") << summary["params"].dump(1);
+  const auto& placement = summary["multi_session"]["placement"];
+  pcl::rast::SessionLocalizerParams vlp16;
+  pcl::rast::applySensorPreset(pcl::rast::SensorPreset::kVlp16, vlp16);
+  const pcl::rast::SessionLocalizerParams defaults;
+  ASSERT_NE(vlp16.verification.min_inliers, defaults.verification.min_inliers);
+  EXPECT_EQ(placement["min_initial_inliers"], vlp16.verification.min_initial_inliers)
+      << placement.dump(1);
+  EXPECT_EQ(placement["min_inliers"], vlp16.verification.min_inliers)
+      << placement.dump(1);
+}
+
 /// Multi-session mapping through the command line: frames 0-24 saved as a session, then
 /// frames 15-39 extend it (-session); a drive of another world stays separate.
 TEST_F(SlamTool, ExtendsASessionWithASecondDriveAndKeepsAStrangerSeparate)
