@@ -128,6 +128,12 @@ run(int argc, char** argv)
       "key-frame saw through, by more than this are left out of the dense step "
       "(m, e.g. 1; 0: off, the default; doc/odometry.md)",
       &params.visibility_margin_m);
+  args.addDouble(
+      "weak-feature-share",
+      "weak features (fewer than 40 inliers) near the prior move it this share of "
+      "the way to them where the scan does not constrain the motion (0: the "
+      "prior alone; the vlp16 preset 0.25; doc/odometry.md)",
+      &params.weak_feature_share);
   args.addSwitch("quiet", "no progress bar", &quiet);
   if (!args.parse(argc, argv))
     return kExitOk;
@@ -163,6 +169,8 @@ run(int argc, char** argv)
       p.dense.degeneracy_min_support = cli_params.dense.degeneracy_min_support;
     if (args.given("visibility-margin"))
       p.visibility_margin_m = cli_params.visibility_margin_m;
+    if (args.given("weak-feature-share"))
+      p.weak_feature_share = cli_params.weak_feature_share;
     p.registration.refine = !no_refine;
     if (no_loose_rematch)
       p.loose_rematch = false;
@@ -345,6 +353,7 @@ run(int argc, char** argv)
                        {"second_passes", tally.second_passes},
                        {"time_field_warnings", tally.time_field_warnings}};
   summary["params"] = {{"visibility_margin_m", params.visibility_margin_m},
+                       {"weak_feature_share", params.weak_feature_share},
                        {"lookahead", !no_lookahead}};
   summary.update(degraded.toJson());
   summary["max_rotation_error"] = rast::maxRotationError(poses);

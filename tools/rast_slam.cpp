@@ -261,6 +261,7 @@ run(int argc, char** argv)
   int young_map_scans = defaults.odometry.dense.young_map_scans;
   double degeneracy_support = defaults.odometry.dense.degeneracy_min_support;
   double map_nearer = defaults.odometry.dense.map_nearer_ratio;
+  double weak_feature_share = defaults.odometry.weak_feature_share;
   double visibility_margin = defaults.odometry.visibility_margin_m;
   bool no_vehicle_prior = false;
   bool no_ba = false;
@@ -315,6 +316,12 @@ run(int argc, char** argv)
                 "tracking: every scan joins the local map while it holds fewer (1: key-frames "
                 "only; see doc/odometry.md)",
                 &young_map_scans);
+  parser.addDouble("weak-feature-share",
+                   "tracking: weak features (fewer than 40 inliers) near the prior move "
+                   "it this share of "
+                   "the way to them where the scan does not constrain the motion (0: the "
+                   "prior alone; the vlp16 preset 0.25; doc/odometry.md)",
+                   &weak_feature_share);
   parser.addDouble(
       "map-nearer",
       "tracking: a full local-map voxel takes a point seen from less than "
@@ -358,6 +365,9 @@ run(int argc, char** argv)
   if (young_map_scans < 1)
     throw std::invalid_argument("-young-map-scans must be >= 1, got " +
                                 std::to_string(young_map_scans));
+  if (!(weak_feature_share >= 0.0 && weak_feature_share <= 1.0))
+    throw std::invalid_argument("-weak-feature-share must be in [0, 1], got " +
+                                std::to_string(weak_feature_share));
   if (!(map_nearer >= 0.0 && map_nearer <= 1.0))
     throw std::invalid_argument("-map-nearer must be in [0, 1], got " +
                                 std::to_string(map_nearer));
@@ -455,6 +465,8 @@ run(int argc, char** argv)
     params.odometry.dense.young_map_scans = young_map_scans;
   if (parser.given("map-nearer"))
     params.odometry.dense.map_nearer_ratio = map_nearer;
+  if (parser.given("weak-feature-share"))
+    params.odometry.weak_feature_share = weak_feature_share;
   if (parser.given("degeneracy-support"))
     params.odometry.dense.degeneracy_min_support = degeneracy_support;
   if (parser.given("visibility-margin"))
@@ -825,6 +837,7 @@ run(int argc, char** argv)
       {"revisit_culling", params.loop_closing.cull_revisits},
       {"young_map_scans", params.odometry.dense.young_map_scans},
       {"map_nearer", params.odometry.dense.map_nearer_ratio},
+      {"weak_feature_share", params.odometry.weak_feature_share},
       {"degeneracy_support", params.odometry.dense.degeneracy_min_support},
       {"visibility_margin_m", params.odometry.visibility_margin_m},
       {"lookahead", !no_lookahead},

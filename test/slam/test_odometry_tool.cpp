@@ -246,6 +246,12 @@ TEST_F(OdometryTool, BadArgumentsExitOneBeforeAnyWork)
   EXPECT_NE(readAll(log_).find("map_nearer_ratio must be in [0, 1], got -0.1"),
             std::string::npos)
       << readAll(log_);
+  EXPECT_EQ(runOdometry("-input . -output '" + out.string() + "' -weak-feature-share 1.5",
+                        log_),
+            1);
+  EXPECT_NE(readAll(log_).find("weak_feature_share must be in [0, 1], got 1.5"),
+            std::string::npos)
+      << readAll(log_);
   EXPECT_FALSE(fs::exists(out)) << "bad arguments must fail before any work";
   EXPECT_EQ(runOdometry("-h", log_), 0);
   EXPECT_NE(readAll(log_).find("-keyframe-min-frames"), std::string::npos);

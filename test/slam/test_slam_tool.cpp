@@ -172,6 +172,7 @@ TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
   rejects("-degeneracy-support -2",
           "-degeneracy-support must be finite and >= 0, got -2");
   rejects("-map-nearer 1.5", "-map-nearer must be in [0, 1], got 1.5");
+  rejects("-weak-feature-share 2", "-weak-feature-share must be in [0, 1], got 2");
   rejects("-visibility-margin -0.5",
           "-visibility-margin must be finite and >= 0, got -0.5");
   EXPECT_FALSE(std::filesystem::exists(dir_ / "o" / "summary.json")) << "no work before the check";
@@ -275,6 +276,7 @@ TEST_F(SlamTool, SavesASessionAndRefusesAFolderThatIsNotOne)
 /// summary.json names the error, and the exit code is 3.
 /// A session's sensor preset sets the merge's placement thresholds: a VLP-16 session
 /// places the drive's key-frames with its 8 / 30 inliers, not the HDL-64's 12 / 40.
+/// (And -weak-feature-share reaches the odometry over the preset's.)
 TEST_F(SlamTool, AMergePlacesWithTheSessionSensorsThresholds)
 {
   const fs::path seq = sequenceDir();
@@ -286,13 +288,20 @@ TEST_F(SlamTool, AMergePlacesWithTheSessionSensorsThresholds)
                     log_),
             0)
       << readFile(log_);
-  ASSERT_EQ(runTool(input + " -first 10 -last 19 -output '" + second.string() +
-                        "' -session '" + session.string() + "'",
+  ASSERT_EQ(runTool(input + " -first 10 -last 19 -weak-feature-share 0.5 -output '" +
+                        second.string() + "' -session '" + session.string() + "'",
                     log_),
             0)
       << readFile(log_);
+  // The preset's odometry in the first run; a flag wins over it in the second.
+  const auto first_summary = nlohmann::json::parse(readFile(first / "summary.json"));
+  pcl::rast::OdometryParams vlp16_odometry;
+  pcl::rast::applySensorPreset(pcl::rast::SensorPreset::kVlp16, vlp16_odometry);
+  EXPECT_EQ(first_summary["params"]["weak_feature_share"],
+            vlp16_odometry.weak_feature_share);
   const auto summary = nlohmann::json::parse(readFile(second / "summary.json"));
   EXPECT_EQ(summary["params"]["sensor"], "vlp16") << summary["params"].dump(1);
+  EXPECT_EQ(summary["params"]["weak_feature_share"], 0.5);
   const auto& placement = summary["multi_session"]["placement"];
   pcl::rast::SessionLocalizerParams vlp16;
   pcl::rast::applySensorPreset(pcl::rast::SensorPreset::kVlp16, vlp16);
