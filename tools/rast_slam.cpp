@@ -316,12 +316,12 @@ run(int argc, char** argv)
                 "tracking: every scan joins the local map while it holds fewer (1: key-frames "
                 "only; see doc/odometry.md)",
                 &young_map_scans);
-  parser.addDouble("weak-feature-share",
-                   "tracking: weak features (fewer than 40 inliers) near the prior move "
-                   "it this share of "
-                   "the way to them where the scan does not constrain the motion (0: the "
-                   "prior alone; the vlp16 preset 0.25; doc/odometry.md)",
-                   &weak_feature_share);
+  parser.addDouble(
+      "weak-feature-share",
+      "tracking: weak features (fewer than 40 inliers) near the prior move "
+      "it this share of the way to them where the scan does not constrain "
+      "the motion (0: the prior alone; the vlp16 preset 0.25; doc/odometry.md)",
+      &weak_feature_share);
   parser.addDouble(
       "map-nearer",
       "tracking: a full local-map voxel takes a point seen from less than "

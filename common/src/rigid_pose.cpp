@@ -79,5 +79,20 @@ maxRotationError(const PoseVector& poses)
   return worst;
 }
 
+Pose3d
+interpolatePose(const Pose3d& T_a, const Pose3d& T_b, double s)
+{
+  if (s == 0.0)
+    return T_a;
+  if (s == 1.0)
+    return T_b;
+  const Eigen::AngleAxisd R_ab(Eigen::Matrix3d(T_a.linear().transpose() * T_b.linear()));
+  Pose3d T = Pose3d::Identity();
+  T.linear() =
+      T_a.linear() * Eigen::AngleAxisd(s * R_ab.angle(), R_ab.axis()).toRotationMatrix();
+  T.translation() = T_a.translation() + s * (T_b.translation() - T_a.translation());
+  return T;
+}
+
 } // namespace rast
 } // namespace pcl

@@ -130,24 +130,6 @@ columnTimeOffset(int column, int steps, double period_s)
   return -period_s * static_cast<double>(wrapped) / static_cast<double>(steps);
 }
 
-/// The pose a fraction \a s of the way from \a T_a to \a T_b: slerp of the rotation
-/// (R_a exp(s log(R_a^T R_b))), lerp of the translation; s outside [0, 1]
-/// extrapolates with the same motion. Exact at s = 0 and s = 1.
-Pose3d
-interpolatePose(const Pose3d& T_a, const Pose3d& T_b, double s)
-{
-  if (s == 0.0)
-    return T_a;
-  if (s == 1.0)
-    return T_b;
-  const Eigen::AngleAxisd R_ab(Eigen::Matrix3d(T_a.linear().transpose() * T_b.linear()));
-  Pose3d T = Pose3d::Identity();
-  T.linear() =
-      T_a.linear() * Eigen::AngleAxisd(s * R_ab.angle(), R_ab.axis()).toRotationMatrix();
-  T.translation() = T_a.translation() + s * (T_b.translation() - T_a.translation());
-  return T;
-}
-
 } // namespace
 } // namespace rast
 } // namespace pcl

@@ -496,19 +496,13 @@ Odometry::Impl::weakAnchored(const Frame& frame,
     return options;
   // The prior alone holds the speed on an open road, where the scan does not
   // constrain it; the share moves it toward the features' x, y and yaw (the prior's
-  // height, roll and pitch: doc/odometry.md), blended in the frame's own motion. A
-  // steady acceleration then lags by a dt^2 (1 - share) / share, and an aliased match
+  // height, roll and pitch: doc/odometry.md), interpolated as poses. A steady
+  // acceleration then lags by a dt^2 (1 - share) / share, and an aliased match
   // pulls by the share of its error.
-  const double share = params.weak_feature_share;
-  const Pose3d d_p = T_world_last.inverse() * frame.T_world_prior;
-  const Pose3d d_f =
-      T_world_last.inverse() *
-      planarFromFeatures(T_world_last, track.T_world_features, frame.T_world_prior);
-  const Eigen::Quaterniond q_p(d_p.rotation()), q_f(d_f.rotation());
-  Pose3d d = Pose3d::Identity();
-  d.linear() = q_p.slerp(share, q_f).toRotationMatrix();
-  d.translation() = d_p.translation() + share * (d_f.translation() - d_p.translation());
-  T_world_anchor = T_world_last * d;
+  T_world_anchor = interpolatePose(
+      frame.T_world_prior,
+      planarFromFeatures(T_world_last, track.T_world_features, frame.T_world_prior),
+      params.weak_feature_share);
   options.T_world_anchor = &T_world_anchor;
   return options;
 }

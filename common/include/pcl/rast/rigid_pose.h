@@ -54,6 +54,11 @@ composePoses(const Pose3d& T_a_b, const Pose3d& T_b_c)
   return normalizedPose(T_a_b * T_b_c);
 }
 
+/// \brief The pose a fraction \a s of the way from \a T_a to \a T_b: slerp of the
+/// rotation (R_a exp(s log(R_a^T R_b))), lerp of the translation; \a s outside [0, 1]
+/// extrapolates with the same motion. Exact at s = 0 and s = 1.
+Pose3d interpolatePose(const Pose3d& T_a, const Pose3d& T_b, double s);
+
 /// \brief Judge a pose from outside: finite, and its rotation block within
 /// \a tolerance of a rotation (rotationError). On success \a out is its projection onto
 /// SE(3), with the nearest rotation in the Frobenius norm (U V^T of the SVD).
