@@ -448,11 +448,23 @@ LoopDetector::verify(const KeyFrame& query,
 }
 
 LoopVerification
+LoopDetector::verify(const KeyFrame& query,
+                     const KeyFrame& candidate,
+                     const Pose3d& T_candidate_query_guess,
+                     const GuessTolerance& tolerance,
+                     const PointVector& dense_target) const
+{
+  return verifyPair(
+      query, candidate, T_candidate_query_guess, tolerance, nullptr, &dense_target);
+}
+
+LoopVerification
 LoopDetector::verifyPair(const KeyFrame& query,
                          const KeyFrame& candidate,
                          const Pose3d& T_candidate_query_guess,
                          const GuessTolerance& tolerance,
-                         const RetrievedKeyFrame* retrieved) const
+                         const RetrievedKeyFrame* retrieved,
+                         const PointVector* dense_target) const
 {
   const pcl::StopWatch t0;
   LoopVerification v;
@@ -488,6 +500,7 @@ LoopDetector::verifyPair(const KeyFrame& query,
     why = denseCheck(query,
                      candidate,
                      retrieved,
+                     dense_target,
                      tolerance.min_dense_overlap >= 0.0 ? tolerance.min_dense_overlap
                                                         : params_.min_dense_overlap,
                      v);
@@ -509,6 +522,7 @@ std::string
 LoopDetector::denseCheck(const KeyFrame& query,
                          const KeyFrame& candidate,
                          const RetrievedKeyFrame* retrieved,
+                         const PointVector* dense_target,
                          double min_overlap,
                          LoopVerification& v) const
 {
@@ -516,9 +530,11 @@ LoopDetector::denseCheck(const KeyFrame& query,
   // candidate's, then the share of query structure (walls, not ground) that fits.
   // The candidate's target as the database keeps it (empty when it had no cloud at
   // insertion), else made from its cloud. A candidate given without its retrieval
-  // (verify(); a session key-frame whose cloud stays in its file) is looked up.
-  const PointVector stored =
-      retrieved ? database_.denseTarget(*retrieved) : database_.denseTarget(candidate);
+  // (verify(); a session key-frame whose cloud stays in its file) is looked up. A
+  // target given by the caller replaces both.
+  const PointVector stored = dense_target ? *dense_target
+                             : retrieved  ? database_.denseTarget(*retrieved)
+                                          : database_.denseTarget(candidate);
   if (!query.cloud || (!candidate.cloud && stored.empty()))
     return "dense check: a key-frame has no cloud";
   const PointToPlaneParams& dp = params_.dense;

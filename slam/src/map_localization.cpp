@@ -159,9 +159,10 @@ template <typename Query>
 Placement
 placeWithPrior(const SessionLocalizer& localizer,
                const Query& query,
-               const std::optional<PlacementPrior>& prior)
+               const std::optional<PlacementPrior>& prior,
+               const PlacementOptions& options)
 {
-  return prior ? localizer.place(query, *prior) : localizer.place(query);
+  return localizer.place(query, prior ? &*prior : nullptr, options);
 }
 
 } // namespace
@@ -1391,6 +1392,12 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
           ? m.farFromMap(predicted)
           : std::nullopt; // only the back-off's schedule depends on it
   const bool far = far_m.has_value();
+  // The candidates' neighbourhoods are verified unless the back-off found the
+  // prediction far from the map: there a placement is unlikely, and on every attempt
+  // they cost a run that starts off the map 30 % of its frame rate (simulated;
+  // doc/session.md, session 47).
+  PlacementOptions options;
+  options.neighbourhoods = !far;
   if (!odo->features || odo->features->empty() || !has_points) {
     placement.message = "no features: " + odo->message;
   } else if (!m.placementDue(far)) {
@@ -1403,6 +1410,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
   } else if (m.placeInBackground(far)) {
     // The odometry goes on with the next frames meanwhile (the query is a copy).
     f.placement_tried = true;
+    f.placement_with_neighbourhoods = options.neighbourhoods;
     KeyFrame query;
     const bool own_features = scan() != raw_scan && !odo->deskew_applied;
     if (!own_features)
@@ -1411,9 +1419,10 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
     const SessionLocalizer& localizer = m.localizer;
     m.pending = Impl::Pending{
         std::async(std::launch::async,
-                   [&localizer, own_features, prior, query = std::move(query)] {
-                     return own_features ? placeWithPrior(localizer, query.cloud, prior)
-                                         : placeWithPrior(localizer, query, prior);
+                   [&localizer, own_features, prior, options, query = std::move(query)] {
+                     return own_features
+                                ? placeWithPrior(localizer, query.cloud, prior, options)
+                                : placeWithPrior(localizer, query, prior, options);
                    }),
         odo->T_world_lidar,
         m.frames,
@@ -1427,13 +1436,14 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
     started_in_background = true;
   } else {
     f.placement_tried = true;
+    f.placement_with_neighbourhoods = options.neighbourhoods;
     if (scan() != raw_scan && !odo->deskew_applied) {
-      placement = placeWithPrior(m.localizer, scan(), prior);
+      placement = placeWithPrior(m.localizer, scan(), prior, options);
     } else {
       KeyFrame query;
       query.features = *odo->features;
       query.cloud = scan();
-      placement = placeWithPrior(m.localizer, query, prior);
+      placement = placeWithPrior(m.localizer, query, prior, options);
     }
     m.last_attempt_frame = m.frames;
   }

@@ -97,10 +97,12 @@ TEST(SensorPreset, ASixteenBeamPlacementNeedsFewerInliers)
       EXPECT_EQ(p.verification.min_initial_inliers,
                 defaults.verification.min_initial_inliers);
       EXPECT_EQ(p.verification.min_inliers, defaults.verification.min_inliers);
+      EXPECT_EQ(p.neighbourhood_keyframes, 0) << toString(preset);
       continue;
     }
     EXPECT_EQ(p.verification.min_initial_inliers, 8);
     EXPECT_EQ(p.verification.min_inliers, 30);
+    EXPECT_EQ(p.neighbourhood_keyframes, 2);
     EXPECT_LT(p.tentative_min_inliers, p.verification.min_inliers);
   }
 }

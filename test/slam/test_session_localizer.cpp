@@ -659,6 +659,11 @@ TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
       if (f.placement_tried && i >= 6) {
         EXPECT_EQ(started, background) << f.message;
       }
+      // A run that starts off the map has no prediction to call far from it: every
+      // attempt may verify the candidates' neighbourhoods.
+      if (f.placement_tried) {
+        EXPECT_TRUE(f.placement_with_neighbourhoods) << "frame " << i;
+      }
       if (f.placement_tried && !started)
         ++failed; // at once
       if (!f.placement_tried) {
@@ -764,6 +769,12 @@ TEST(MapLocalization, AttemptsFarFromTheMapAreFewerAndLater)
       if (f.message.find("started in the background") != std::string::npos)
         started.push_back(i);
       far_notes += f.message.find("far from the map: ") != std::string::npos ? 1 : 0;
+      // Far from the map the attempts leave the candidates' neighbourhoods out.
+      if (f.placement_tried) {
+        EXPECT_EQ(f.placement_with_neighbourhoods,
+                  f.message.find("far from the map: ") == std::string::npos)
+            << "frame " << i << ": " << f.message;
+      }
       // An attempt is taken after its lag: 3 frames far from the map, 1 near it.
       const std::string taken =
           far_expected ? "from the scan 3 frames before" : "from the scan 1 frame before";
@@ -1114,6 +1125,71 @@ TEST(MapLocalization, SkippedScansAreCarriedByTheLastMotion)
   EXPECT_LT(max_skipped_m, 0.3);
 }
 
+/// A VLP-16 scan pairs few corners with any one key-frame of the map. Verified with the
+/// key-frames around a candidate as well, where each one alone fails, more scans are
+/// placed, none wrong, and another world still places nothing.
+TEST(SessionLocalizer, ACandidatesNeighboursPlaceSparseScansThatItAloneCannot)
+{
+  const MappedLoop m = mapLoop(false, 150, SensorModel::kVlp16, SensorPreset::kVlp16);
+  const auto localizerWith = [&](int neighbours) {
+    SessionLocalizerParams params;
+    applySensorPreset(SensorPreset::kVlp16, params);
+    params.neighbourhood_keyframes = neighbours;
+    SessionLoadOptions options;
+    options.load_clouds = false;
+    return std::make_unique<SessionLocalizer>(loadSession(m.dir.string(), options),
+                                              params);
+  };
+  const auto alone = localizerWith(0);
+  const auto together = localizerWith(2);
+  const auto elsewhere = pathSimulator(PathType::kStraight, 40, 0.0, 9);
+  int placed[2] = {0, 0}, by_neighbours = 0;
+  // The second pass thinned to a fifth of its points (a fixed draw), a sparser view of
+  // the place: fewer of its corners pair with any one key-frame.
+  std::mt19937 rng(7);
+  for (std::size_t i = 160; i < 200; ++i) {
+    const auto full = simulateFrame(*m.sim, i);
+    auto scan = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    for (const pcl::PointXYZI& q : full->points)
+      if (rng() % 100 < 20)
+        scan->push_back(q);
+    for (const bool with : {false, true}) {
+      const Placement p = (with ? *together : *alone).place(scan);
+      if (!p.success)
+        continue;
+      ++placed[with];
+      const Pose3d gt = m.truth(i);
+      const double error_m = (p.T_world_lidar.translation() - gt.translation()).norm();
+      EXPECT_LT(error_m, 0.5) << "frame " << i << (with ? " with" : " without")
+                              << " neighbours: " << p.message;
+      EXPECT_LT(rotationErrorDeg(p.T_world_lidar, gt), 2.0) << "frame " << i;
+      if (with && p.message.find("with its neighbours") != std::string::npos)
+        ++by_neighbours;
+    }
+  }
+  int neighbourhoods = 0;
+  for (std::size_t i = 0; i < 40; i += 2) {
+    const auto scan = simulateFrame(*elsewhere, i);
+    const Placement p = together->place(scan);
+    EXPECT_FALSE(p.success) << "frame " << i << " of another world: " << p.message;
+    EXPECT_LE(p.neighbourhoods_verified, p.candidates_verified);
+    neighbourhoods += p.neighbourhoods_verified;
+    // A caller can leave the second pass out.
+    PlacementOptions alone_only;
+    alone_only.neighbourhoods = false;
+    EXPECT_EQ(together->place(scan, nullptr, alone_only).neighbourhoods_verified, 0);
+  }
+  EXPECT_GT(neighbourhoods, 0)
+      << "another world's scans were verified with neighbourhoods";
+  std::printf("simulated VLP-16 second pass: %d of 40 scans placed alone, %d with two "
+              "neighbours (%d by them)\n",
+              placed[0],
+              placed[1],
+              by_neighbours);
+  EXPECT_GT(by_neighbours, 0);
+  EXPECT_EQ(placed[1], placed[0] + by_neighbours) << "the first pass is the plain one";
+}
+
 TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
 {
   SessionLocalizerParams params;
@@ -1187,6 +1263,12 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
   SessionLocalizerParams tentative_two;
   tentative_two.tentative_min_inliers = 2;
   expectInvalid(tentative_two, "tentative_min_inliers must be 0 or >= 3, got 2");
+  SessionLocalizerParams neighbours;
+  neighbours.neighbourhood_keyframes = -1;
+  expectInvalid(neighbours, "neighbourhood_keyframes must be >= 0, got -1");
+  neighbours.neighbourhood_keyframes = 2;
+  neighbours.neighbourhood_radius_m = 0.0;
+  expectInvalid(neighbours, "neighbourhood_radius_m must be > 0, got 0");
 }
 
 } // namespace

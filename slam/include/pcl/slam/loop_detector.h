@@ -102,6 +102,16 @@ public:
                           const Pose3d& T_candidate_query_guess,
                           const GuessTolerance& tolerance) const;
 
+  /// \brief verify() with the dense check on \a dense_target (points in the
+  /// candidate's LiDAR frame) instead of the target the database keeps for the
+  /// candidate: for a candidate that stands for several key-frames, say
+  /// (SessionLocalizerParams::neighbourhood_keyframes).
+  LoopVerification verify(const KeyFrame& query,
+                          const KeyFrame& candidate,
+                          const Pose3d& T_candidate_query_guess,
+                          const GuessTolerance& tolerance,
+                          const PointVector& dense_target) const;
+
   /// \brief Appearance scores (votes) of every eligible (not recent) database
   /// key-frame for \a query at \a T_world_query: key-frame ids with their scores,
   /// best first (normalised ranking), no minimum applied. Empty with retrieval kNone.
@@ -133,17 +143,20 @@ public:
   Pose3d pose(KeyFrameId id) const;
 
 private:
-  /// verify() with the candidate's dense target given (nullptr: from candidate.cloud).
+  /// verify() with the candidate's retrieval given (nullptr: looked up), or its dense
+  /// target itself (\a dense_target not null).
   LoopVerification verifyPair(const KeyFrame& query,
                               const KeyFrame& candidate,
                               const Pose3d& T_candidate_query_guess,
                               const GuessTolerance& tolerance,
-                              const RetrievedKeyFrame* retrieved) const;
+                              const RetrievedKeyFrame* retrieved,
+                              const PointVector* dense_target = nullptr) const;
   /// Step 9 of verifyPair: the point-to-plane check on the candidate's dense target;
   /// returns why the pair is rejected, or nothing.
   std::string denseCheck(const KeyFrame& query,
                          const KeyFrame& candidate,
                          const RetrievedKeyFrame* retrieved,
+                         const PointVector* dense_target,
                          double min_overlap,
                          LoopVerification& v) const;
   /// The final refinement of an accepted \a v on the candidate's dense \a target.

@@ -63,6 +63,14 @@ struct SessionLocalizerParams
   /// first, under the prior as the guess and whatever their appearance score, as the
   /// paper closes loops with the nearest key-frames. 0: the prior is not used.
   int max_prior_candidates = 2;
+  /// A candidate key-frame is verified together with up to this many key-frames of the
+  /// map nearest it (within neighbourhood_radius_m): their features, moved into its
+  /// frame, join its own where no feature of it lies within 0.5 m, and their dense
+  /// targets join its target. One scan sees some of a place's corners and walls, and
+  /// the scans around it see others. 0: the candidate alone.
+  int neighbourhood_keyframes = 0;
+  /// How far from the candidate those key-frames may lie [m] (> 0).
+  double neighbourhood_radius_m = 10.0;
   /// \brief Whether all values are usable; on failure \a why (if not null) says which.
   bool isValid(std::string* why = nullptr) const;
 };
@@ -72,9 +80,11 @@ struct SessionLocalizerParams
 /// thresholds. A 16-beam scan's raster holds about a quarter of the corners of a 64-beam
 /// one, and a true revisit pairs fewer of them: for `vlp16` a placement needs 8 inliers
 /// of the first RANSAC instead of 12 (verification.min_initial_inliers) and 30 guided
-/// inliers instead of 40 (verification.min_inliers; 20-29 make a tentative one). The
-/// dense check and the other verification steps are unchanged (doc/session.md,
-/// "Session 44"). The other presets change only the odometry.
+/// inliers instead of 40 (verification.min_inliers; 20-29 make a tentative one), and a
+/// candidate that fails alone is verified again with its 2 nearest key-frames
+/// (neighbourhood_keyframes). The dense check and the other verification steps are
+/// unchanged (doc/session.md, "Session 44" and "Session 47"). The other presets change
+/// only the odometry.
 void applySensorPreset(SensorPreset preset, SessionLocalizerParams& params);
 
 /// \brief Where the scan is believed to be on the map, and how far off that may be: the
@@ -89,6 +99,17 @@ struct PlacementPrior
   /// The dense check's least overlap for the key-frames near the prior (negative:
   /// LoopDetectorParams::min_dense_overlap, as for the others).
   double min_dense_overlap = -1.0;
+};
+
+/// \brief Per call choices of SessionLocalizer::place.
+struct PlacementOptions
+{
+  /// When no candidate places the scan alone, verify them again with their
+  /// neighbourhoods (SessionLocalizerParams::neighbourhood_keyframes). That matches the
+  /// scan with several times the features: a caller that tries every few frames for
+  /// long where a placement is unlikely turns it off (MapLocalization does far from
+  /// the map).
+  bool neighbourhoods = true;
 };
 
 /// \brief Where a scan was placed on the map, or why it was not.
@@ -109,6 +130,8 @@ struct Placement
   int num_features = 0;         ///< ORB features of the scan
   int candidates_retrieved = 0; ///< key-frames that shared appearance with it
   int candidates_verified = 0;  ///< of which verified before one passed (or all failed)
+  /// of which verified again with their neighbourhoods (neighbourhood_keyframes)
+  int neighbourhoods_verified = 0;
   double time_ms = 0.0;         ///< features, retrieval and verification
   std::string message;          ///< what placed it, or why nothing did
 };
@@ -150,6 +173,14 @@ public:
   Placement place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
                   const PlacementPrior& prior) const;
   Placement place(const KeyFrame& query, const PlacementPrior& prior) const;
+
+  /// \brief place() with per call \a options, and a prior when \a prior is not null.
+  Placement place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
+                  const PlacementPrior* prior,
+                  const PlacementOptions& options) const;
+  Placement place(const KeyFrame& query,
+                  const PlacementPrior* prior,
+                  const PlacementOptions& options) const;
 
   const Session& session() const;
   /// \brief Key-frames in the appearance index.
@@ -374,6 +405,10 @@ struct LocalizationFrame
   /// A placement was tried this frame (not backed off: placement_backoff_after), or
   /// started in the background (background_placement_lag).
   bool placement_tried = false;
+  /// ... and that placement could verify candidates with their neighbourhoods
+  /// (PlacementOptions::neighbourhoods: not when the back-off found the prediction far
+  /// from the map).
+  bool placement_with_neighbourhoods = false;
   bool odometry_ran = false; ///< the odometry tracked this frame (see track_on_map)
   /// ... and took the scan prepared ahead (addScan with a look-ahead scan).
   bool odometry_prepared_ahead = false;
