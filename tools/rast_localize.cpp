@@ -218,6 +218,11 @@ run(int argc, char** argv)
               "placement: RANSAC inliers after guided matching (vlp16: 30)",
               &place_min_inliers);
   int prior_candidates = localizer_defaults.max_prior_candidates;
+  // Like the inlier thresholds, the default is the session's sensor preset's.
+  int place_neighbours = localizer_defaults.neighbourhood_keyframes;
+  args.addInt("place-neighbours",
+              "placement: map key-frames nearest a candidate verified with it (0: none)",
+              &place_neighbours);
 
   int dense_points = localizer_defaults.odometry.dense.max_source_points;
   args.addInt(
@@ -272,6 +277,9 @@ run(int argc, char** argv)
                                 std::to_string(place_min_score) + " (>= 1), -place-min-initial " +
                                 std::to_string(place_min_initial) + " (>= 3), -place-min-inliers " +
                                 std::to_string(place_min_inliers) + " (>= 3)");
+  if (place_neighbours < 0)
+    throw std::invalid_argument("bad -place-neighbours " +
+                                std::to_string(place_neighbours) + " (>= 0)");
   if (dense_points < 10)
     throw std::invalid_argument("bad -dense-points " + std::to_string(dense_points) +
                                 " (>= 10)");
@@ -320,6 +328,8 @@ run(int argc, char** argv)
   if (args.given("place-min-inliers"))
     localizer_params.verification.min_inliers = place_min_inliers;
   localizer_params.max_prior_candidates = prior_candidates;
+  if (args.given("place-neighbours"))
+    localizer_params.neighbourhood_keyframes = place_neighbours;
   localizer_params.odometry.dense.max_source_points = dense_points;
   std::string deskew_reason, deskew_timing;
   applyDeskewFlags(deskew, reader, static_cast<std::size_t>(stride),
@@ -513,6 +523,7 @@ run(int argc, char** argv)
       {"min_score", place_min_score},
       {"min_initial_inliers", localizer_params.verification.min_initial_inliers},
       {"min_inliers", localizer_params.verification.min_inliers},
+      {"neighbourhood_keyframes", localizer_params.neighbourhood_keyframes},
       {"track_on_map", params.track_on_map},
       {"backoff_after", params.placement_backoff_after},
       {"every", params.placement_every},

@@ -93,6 +93,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_TRUE(summary["jumps"].empty());
   EXPECT_EQ(summary["placement"]["min_inliers"].get<int>(), 40); // the hdl64 preset's
   EXPECT_EQ(summary["placement"]["min_initial_inliers"].get<int>(), 12);
+  EXPECT_EQ(summary["placement"]["neighbourhood_keyframes"].get<int>(), 0);
   EXPECT_TRUE(summary["placement"]["track_on_map"].get<bool>());
   EXPECT_TRUE(summary["lookahead"]["on"].get<bool>());
   EXPECT_EQ(summary["map_alignment"]["merged_keyframes_within_m"].get<double>(), 10.0);
@@ -125,7 +126,8 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   ASSERT_EQ(run("-session " + quoted(m.session) + " -input " + quoted(m.scans) +
                 " -output " + quoted(out2) +
                 " -first 10 -last 19 -software-render -quiet -no-merged-keyframes "
-                "-place-min-initial 11 -place-min-inliers 38 -initial-pose '" +
+                "-place-min-initial 11 -place-min-inliers 38 -place-neighbours 3 "
+                "-initial-pose '" +
                 pose + "'"),
             0)
       << readFile(log_);
@@ -136,6 +138,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   // Given thresholds replace the sensor preset's.
   EXPECT_EQ(summary2["placement"]["min_initial_inliers"].get<int>(), 11);
   EXPECT_EQ(summary2["placement"]["min_inliers"].get<int>(), 38);
+  EXPECT_EQ(summary2["placement"]["neighbourhood_keyframes"].get<int>(), 3);
 
   // Without the odometry's look-ahead: the same poses (MapLocalization's own test
   // compares them off the map, where the odometry runs on every frame).
@@ -288,6 +291,11 @@ TEST_F(LocalizeTool, BadSessionsAndArgumentsAreRefusedBeforeAnyWork)
                 " -place-min-inliers 2"),
             1);
   EXPECT_NE(readFile(log_).find("-place-min-inliers 2 (>= 3)"), std::string::npos)
+      << readFile(log_);
+  EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
+                " -place-neighbours -1"),
+            1);
+  EXPECT_NE(readFile(log_).find("-place-neighbours -1 (>= 0)"), std::string::npos)
       << readFile(log_);
   EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
                 " -dense-points 5"),
