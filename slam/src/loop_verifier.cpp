@@ -532,9 +532,11 @@ LoopDetector::denseCheck(const KeyFrame& query,
   // insertion), else made from its cloud. A candidate given without its retrieval
   // (verify(); a session key-frame whose cloud stays in its file) is looked up. A
   // target given by the caller replaces both.
-  const PointVector stored = dense_target ? *dense_target
-                             : retrieved  ? database_.denseTarget(*retrieved)
-                                          : database_.denseTarget(candidate);
+  PointVector looked_up;
+  if (!dense_target)
+    looked_up =
+        retrieved ? database_.denseTarget(*retrieved) : database_.denseTarget(candidate);
+  const PointVector& stored = dense_target ? *dense_target : looked_up;
   if (!query.cloud || (!candidate.cloud && stored.empty()))
     return "dense check: a key-frame has no cloud";
   const PointToPlaneParams& dp = params_.dense;

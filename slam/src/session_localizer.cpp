@@ -198,28 +198,26 @@ checkPrior(const PlacementPrior& prior)
 Placement
 SessionLocalizer::place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan) const
 {
-  return impl_->place(scan, nullptr, PlacementOptions());
+  return place(scan, nullptr, PlacementOptions());
 }
 
 Placement
 SessionLocalizer::place(const KeyFrame& query) const
 {
-  return impl_->place(query, nullptr, PlacementOptions());
+  return place(query, nullptr, PlacementOptions());
 }
 
 Placement
 SessionLocalizer::place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
                         const PlacementPrior& prior) const
 {
-  checkPrior(prior);
-  return impl_->place(scan, &prior, PlacementOptions());
+  return place(scan, &prior, PlacementOptions());
 }
 
 Placement
 SessionLocalizer::place(const KeyFrame& query, const PlacementPrior& prior) const
 {
-  checkPrior(prior);
-  return impl_->place(query, &prior, PlacementOptions());
+  return place(query, &prior, PlacementOptions());
 }
 
 Placement
