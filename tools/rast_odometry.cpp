@@ -134,6 +134,12 @@ run(int argc, char** argv)
       "the way to them where the scan does not constrain the motion (0: the "
       "prior alone; the vlp16 preset 0.25; doc/odometry.md)",
       &params.weak_feature_share);
+  int features_every = 1;
+  args.addInt("features-every",
+              "want the raster features of every N-th scan only; the dense step alone "
+              "tracks the scans between where it can (0: of none; 1: of all, the "
+              "default; what pcl_rast_localize does off the map; doc/odometry.md)",
+              &features_every);
   args.addSwitch("quiet", "no progress bar", &quiet);
   if (!args.parse(argc, argv))
     return kExitOk;
@@ -142,6 +148,9 @@ run(int argc, char** argv)
   // Validate everything before any work.
   if (first < 0 || stride < 1 || last < -1 || (last >= 0 && last < first))
     throw std::invalid_argument("need -first >= 0, -stride >= 1, -last -1 or >= -first");
+  if (features_every < 0)
+    throw std::invalid_argument("-features-every " + std::to_string(features_every) +
+                                " (>= 0)");
   checkDeskewFlags(deskew);
   // The flags given win over the sensor preset, which is known only once the input is
   // listed; they are checked before any work all the same.
@@ -223,7 +232,7 @@ run(int argc, char** argv)
   // clang-format on
   std::map<std::string, int> status_counts;
   std::vector<double> totals;
-  std::size_t num_tracked = 0;
+  std::size_t num_tracked = 0, frames_without_features = 0;
   std::size_t frames_degenerate = 0;
   DeskewTally tally;
   DegradedStretches degraded;
@@ -259,6 +268,8 @@ run(int argc, char** argv)
                        frame.time_warning.c_str());
         // The next scan's ground, raster and ORB on a second thread meanwhile.
         const ReadItem* next = no_lookahead ? nullptr : prefetcher.peek();
+        odometry.setFeaturesWanted(features_every == 1 ||
+                                   (features_every > 1 && i % features_every == 0));
         r = next && next->ok
                 ? odometry.processFrame(frame.cloud,
                                         frame.timestamp_s,
@@ -281,6 +292,7 @@ run(int argc, char** argv)
     }
     if (r.status != rast::TrackingStatus::kSkipped)
       ++num_tracked;
+    frames_without_features += r.features_skipped ? 1 : 0;
     if (r.degraded && r.status != rast::TrackingStatus::kSkipped)
       std::fprintf(stderr, "\nframe %zu: %s: %s\n", i, rast::toString(r.status),
                    r.message.c_str());
@@ -342,6 +354,8 @@ run(int argc, char** argv)
   summary["interrupted"] = stopped_at < reader.size();
   summary["stop_signal"] = stopRequested() ? nlohmann::json(stopSignalName()) : nlohmann::json(nullptr);
   summary["keyframes"] = odometry.numKeyFrames();
+  summary["features"] = {{"every", features_every},
+                         {"frames_without", frames_without_features}};
   summary["tracking_status"] = status_counts;
   summary["median_frame_ms"] = median;
   summary["frames_with_degenerate_directions"] = frames_degenerate;

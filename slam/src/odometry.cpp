@@ -423,6 +423,18 @@ Odometry::params() const
   return impl_->params;
 }
 
+void
+Odometry::setFeaturesWanted(bool wanted)
+{
+  impl_->features_wanted = wanted;
+}
+
+bool
+Odometry::featuresWanted() const
+{
+  return impl_->features_wanted;
+}
+
 std::size_t
 Odometry::numKeyFrames() const
 {
@@ -625,7 +637,8 @@ Odometry::Impl::prepare(FrontEnd& front,
                         bool keep_times,
                         double frame_interval_s,
                         const SweepMotion* motion,
-                        OdometryFrameResult result) const
+                        OdometryFrameResult result,
+                        bool features) const
 {
   auto frame = std::make_unique<Frame>(input);
   if (keep_times)
@@ -661,7 +674,8 @@ Odometry::Impl::prepare(FrontEnd& front,
   result.timings.deskew_ms = watch.getTime();
 
   removeGround(front, *frame, result); // 1
-  if (motion || !frame->times)         // without times there is nothing to compensate
+  // Without times there is nothing to compensate; features not wanted wait (process).
+  if (features && (motion || !frame->times))
     finishPrepare(front, *frame, result, motion);
   return {std::move(frame), std::move(result)};
 }
@@ -672,6 +686,16 @@ Odometry::Impl::finishPrepare(FrontEnd& front,
                               OdometryFrameResult& result,
                               const SweepMotion* motion) const
 {
+  applySweepMotion(frame, result, motion);
+  extractFeatures(front, frame, result); // 2-3
+  frame.extracted = true;
+}
+
+void
+Odometry::Impl::applySweepMotion(Frame& frame,
+                                 OdometryFrameResult& result,
+                                 const SweepMotion* motion)
+{
   // 0c. The compensation's motion: the previous frame's. Every step below uses
   //     compensated points: the non-ground points (raster, features) and the dense
   //     step's source points right away, the whole scan only when a key-frame or the
@@ -681,8 +705,19 @@ Odometry::Impl::finishPrepare(FrontEnd& front,
     frame.T_motion_deskew = motion->T_motion;
   }
   result.deskew_applied = frame.xi_sweep.has_value();
-  extractFeatures(front, frame, result); // 2-3
-  frame.extracted = true;
+}
+
+void
+Odometry::Impl::ensureFeatures(Frame& frame, OdometryFrameResult& result) const
+{
+  if (!frame.extracted && frame.deferred_front) {
+    extractFeatures(*frame.deferred_front, frame, result); // 2-3
+    frame.extracted = true;
+  } else if (result.features_skipped && frame.features) { // made ahead, then left unused
+    result.features = frame.features;
+    result.num_features = static_cast<int>(frame.features->size());
+  }
+  result.features_skipped = false;
 }
 
 std::future<void>
@@ -714,13 +749,22 @@ Odometry::Impl::launchAhead(const OdometryInput& next, double timestamp_s)
   a.frame_index = next.frame_index;
   a.timestamp_s = next.timestamp_s;
   a.after_s = timestamp_s;
+  // The features of a scan without times are made here, unless this frame's are not
+  // wanted: then likely neither are the next one's (made in its call if they are).
   a.job = ahead_thread->run([this,
                              input = next.cloud,
                              times = next.point_times_s,
                              next_interval,
-                             next_result = std::move(next_result)] {
-    return prepare(
-        front_end_ahead, input, times, true, next_interval, nullptr, next_result);
+                             next_result = std::move(next_result),
+                             features = features_wanted] {
+    return prepare(front_end_ahead,
+                   input,
+                   times,
+                   true,
+                   next_interval,
+                   nullptr,
+                   next_result,
+                   features);
   });
   ahead.emplace(std::move(a));
 }
@@ -761,12 +805,30 @@ Odometry::Impl::process(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
       taken = mine->job.get();
     if (taken && taken->frame->own_times != point_times)
       taken.reset(); // prepared for other point times (a caller's mistake): again
-    Prepared prepared =
-        taken ? std::move(*taken)
-              : prepare(front_end, cloud, point_times, false, motion.dt, &motion, result);
+    // Without features wanted, steps 2-3 wait for a frame the dense step alone does
+    // not track (and for a key-frame). Only with a key-frame and a tracked velocity to
+    // predict from, and after the cold start's first scan has found its motion.
+    const bool defer = !features_wanted && keyframe && velocity_tracked && !first_scan &&
+                       params.registration.refine;
+    Prepared prepared = taken ? std::move(*taken)
+                              : prepare(front_end,
+                                        cloud,
+                                        point_times,
+                                        false,
+                                        motion.dt,
+                                        &motion,
+                                        result,
+                                        !defer);
     if (prepared.frame->usable) {
-      if (!prepared.frame->extracted)
+      // (Features a scan without times had made ahead are left unused the same way:
+      // the poses do not depend on the look-ahead.)
+      if (defer) {
+        if (!prepared.frame->extracted)
+          applySweepMotion(*prepared.frame, prepared.result, &motion);
+        prepared.frame->deferred_front = &front_end;
+      } else if (!prepared.frame->extracted) {
         finishPrepare(front_end, *prepared.frame, prepared.result, &motion);
+      }
       // The dense step's source points, here on the caller's thread: about as much
       // work is left to it as to the look-ahead's.
       const pcl::StopWatch source_watch;

@@ -70,6 +70,19 @@ constexpr int kReanchorAfterFrames = 3;
 /// Dense ICP from the prior (no feature support) is accepted only when at least this
 /// fraction of the source points pairs with map planes (well-tracked frames: 0.8-0.95).
 constexpr double kMinFallbackPairedRatio = 0.6;
+/// A frame tracked without features (Odometry::setFeaturesWanted) needs a dense step
+/// that converged and constrains its weakest direction with at least this share of the
+/// weight: from a prior a few decimetres off, a weaker direction kept the prior's error
+/// (a simulated figure eight: 0.4 m a frame at 0.005-0.04 of the weight). Chosen on
+/// the simulated tuning seed 42 among 0.01, 0.02 and 0.05 (doc/odometry.md, "Features
+/// on demand").
+constexpr double kDenseOnlyMinWeakestRatio = 0.02;
+/// Such a frame becomes a key-frame by the paper's rule after this many times
+/// keyframe_min_frames (or by the distance and rotation rules): its key-frame's features
+/// serve only the frames that track by features, and the local map takes a scan with
+/// each key-frame. Chosen on the simulated tuning seed 42 among 1, 2 and 3
+/// (doc/odometry.md).
+constexpr int kDenseOnlyKeyframeFactor = 2;
 /// ... or fewer when the optimum is distinct: it pairs at least kDistinctPairsFactor
 /// times as many points as any hypothesis that ended elsewhere. Little overlap with the
 /// map is normal after a large motion against a single key-frame (cold start at 4 m per
@@ -180,6 +193,9 @@ struct Odometry::Impl
 
   const OdometryParams params;
   FrontEnd front_end, front_end_ahead;
+  /// Odometry::setFeaturesWanted: false lets a frame the dense step tracks alone skip
+  /// its features.
+  bool features_wanted = true;
   /// The local map: read through localMap(), which waits for an insertion running.
   VoxelPlaneMap local_map;
   int map_scans = 0; ///< scans inserted into the map so far
@@ -301,6 +317,10 @@ struct Odometry::Impl
     Eigen::Isometry3f T_level_lidar = Eigen::Isometry3f::Identity();
     /// Steps 2-3 are done (the non-ground points compensated, the features).
     bool extracted = false;
+    /// The caller wants no features (setFeaturesWanted): the dense step alone is tried
+    /// first, and steps 2-3, unless made ahead, are made by ensureFeatures with this
+    /// front end only if the frame needs them after all.
+    FrontEnd* deferred_front = nullptr;
   };
   /// The outcome of trackFeatures.
   struct FeatureTrack
@@ -341,7 +361,8 @@ struct Odometry::Impl
                    bool keep_times,
                    double frame_interval_s,
                    const SweepMotion* motion,
-                   OdometryFrameResult result) const;
+                   OdometryFrameResult result,
+                   bool features = true) const;
   /// Steps 2-3 of a prepared frame: the non-ground points compensated with \a motion
   /// (when the scan has times and the motion a velocity), the raster, ORB. (The dense
   /// step's source points are chosen and compensated on the caller's thread: process.)
@@ -349,8 +370,19 @@ struct Odometry::Impl
                      Frame& frame,
                      OdometryFrameResult& result,
                      const SweepMotion* motion) const;
+  /// The compensation's motion of a prepared frame (the part of finishPrepare before
+  /// its features).
+  static void
+  applySweepMotion(Frame& frame, OdometryFrameResult& result, const SweepMotion* motion);
+  /// Steps 2-3 of a frame that deferred them, now (or the features made ahead, back in
+  /// the result).
+  void ensureFeatures(Frame& frame, OdometryFrameResult& result) const;
   /// One prepared frame, the steps below in order (odometry_tracking.cpp).
   OdometryFrameResult track(Frame& frame, OdometryFrameResult result);
+  /// Step 4-5 without features (setFeaturesWanted false): the dense step from the
+  /// prior, taken when it pairs most points, constrains every direction and stays near
+  /// the prior. Returns whether it was taken (else nothing of the result changed).
+  bool trackDenseOnly(const Frame& frame, OdometryFrameResult& result) const;
   /// Step 1: ground removal (and the levelling transform).
   void removeGround(FrontEnd& front, Frame& frame, OdometryFrameResult& result) const;
   /// Steps 2-3: raster of the (compensated, levelled) non-ground points, ORB.

@@ -73,29 +73,42 @@ Odometry::Impl::track(Frame& frame, OdometryFrameResult result)
     return result;
   }
 
-  const FeatureTrack feature_track = trackFeatures(frame, result); // 4
-  // 4b. What moved out of the map's voxels, as this scan sees it from the prior, does
-  //     not pair this frame (moving objects; dropMovedIn drops what moved in).
-  frame.check_visibility = useVisibility(frame);
-  const pcl::StopWatch hide_watch;
-  result.hidden_map_voxels =
-      localMap().hideSeenThrough(frame.check_visibility ? &frame.image : nullptr,
-                                 frame.T_world_prior.cast<float>(),
-                                 static_cast<float>(params.visibility_radius_m),
-                                 static_cast<float>(params.visibility_margin_m));
-  result.timings.visibility_ms += hide_watch.getTime();
+  // 4-5 without features (none wanted): the dense step from the prior, where it alone
+  // tracks the frame. (No visibility test: its image comes with the features.)
+  bool dense_only = false;
+  if (frame.deferred_front) {
+    watch.reset();
+    localMap().hideSeenThrough(nullptr, frame.T_world_prior.cast<float>(), 0.0f, 0.0f);
+    dense_only = trackDenseOnly(frame, result);
+    result.timings.refine_ms += watch.getTime();
+  }
+  FeatureTrack feature_track;
+  if (!dense_only) {
+    ensureFeatures(frame, result);
+    feature_track = trackFeatures(frame, result); // 4
+    // 4b. What moved out of the map's voxels, as this scan sees it from the prior, does
+    //     not pair this frame (moving objects; dropMovedIn drops what moved in).
+    frame.check_visibility = useVisibility(frame);
+    const pcl::StopWatch hide_watch;
+    result.hidden_map_voxels =
+        localMap().hideSeenThrough(frame.check_visibility ? &frame.image : nullptr,
+                                   frame.T_world_prior.cast<float>(),
+                                   static_cast<float>(params.visibility_radius_m),
+                                   static_cast<float>(params.visibility_margin_m));
+    result.timings.visibility_ms += hide_watch.getTime();
 
-  // 5. Dense refinement against the local map, from the feature estimate; the
-  //    feature-consistency check falls back to dense ICP from the prior, then to the
-  //    prior itself.
-  watch.reset();
-  if (params.registration.refine || !feature_track.ok)
-    dropMovedIn(frame, result);
-  if (feature_track.ok)
-    prior_overruled_features = trackDense(frame, feature_track, result);
-  else
-    searchHypotheses(frame, feature_track, result);
-  result.timings.refine_ms += watch.getTime(); // (+ the source points, prepare)
+    // 5. Dense refinement against the local map, from the feature estimate; the
+    //    feature-consistency check falls back to dense ICP from the prior, then to the
+    //    prior itself.
+    watch.reset();
+    if (params.registration.refine || !feature_track.ok)
+      dropMovedIn(frame, result);
+    if (feature_track.ok)
+      prior_overruled_features = trackDense(frame, feature_track, result);
+    else
+      searchHypotheses(frame, feature_track, result);
+    result.timings.refine_ms += watch.getTime(); // (+ the source points, prepare)
+  }
 
   // 5b. Second pass of the motion compensation with the estimated motion.
   if (frame.xi_sweep && result.refined && !frame.source_indices.empty())
@@ -423,6 +436,39 @@ Odometry::Impl::trackDense(const Frame& frame,
   return prior_won;
 }
 
+bool
+Odometry::Impl::trackDenseOnly(const Frame& frame, OdometryFrameResult& result) const
+{
+  // Only where a vehicle cannot deviate far from its tracked velocity within the frame
+  // interval. There a dense step from the prediction that pairs most of the scan,
+  // constrains every direction and ends near the prediction is what the features'
+  // estimate would have been refined to; anything else (a turn the prior missed, a
+  // corridor, a scan that pairs poorly) goes the usual way, with its features.
+  const PriorGate gate = priorGate(frame);
+  if (!gate.dynamics)
+    return false;
+  const DenseResult dense = registerToMap(
+      frame.source, localMap(), frame.T_world_prior, params.dense, priorAnchored(frame));
+  const double paired_ratio = static_cast<double>(dense.num_correspondences) /
+                              std::max(1, dense.num_source_points);
+  if (!dense.success || dense.degenerate_directions > 0 ||
+      dense.iterations >= params.dense.max_iterations ||
+      dense.weakest_ratio < kDenseOnlyMinWeakestRatio ||
+      paired_ratio < kMinFallbackPairedRatio ||
+      !withinGate(frame, dense.T_world_lidar, gate))
+    return false;
+  result.status = TrackingStatus::kDenseFallback;
+  result.T_world_lidar = dense.T_world_lidar;
+  result.refined = true;
+  result.features_skipped = true;
+  result.features.reset(); // (a scan without times may have had them made ahead)
+  result.num_features = 0;
+  keepDenseStats(dense, result);
+  result.message =
+      "dense from the prior, no features made (none wanted); " + dense.message;
+  return true;
+}
+
 Odometry::Impl::PriorGate
 Odometry::Impl::priorGate(const Frame& frame) const
 {
@@ -605,7 +651,11 @@ Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
       result.status == TrackingStatus::kFeatures ||
       (result.status == TrackingStatus::kDenseFallback && result.refined);
   const int frames_since = frames_since_keyframe + 1;
-  const bool paper_rule = frames_since >= params.keyframe_min_frames &&
+  // A frame tracked without features has no inliers to count: the paper's rule waits
+  // twice as long there (kDenseOnlyKeyframeFactor).
+  const int min_frames = params.keyframe_min_frames *
+                         (result.features_skipped ? kDenseOnlyKeyframeFactor : 1);
+  const bool paper_rule = frames_since >= min_frames &&
                           result.num_inliers <= params.keyframe_max_common_points;
   const bool far =
       result.T_keyframe_lidar.translation().norm() > params.keyframe_max_distance_m ||
@@ -614,6 +664,7 @@ Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
   const bool weak = result.num_inliers < params.keyframe_min_inliers && useful;
   const bool reanchor = frames_without_tracking + 1 >= kReanchorAfterFrames && useful;
   if ((tracked && (paper_rule || far || weak)) || reanchor) {
+    ensureFeatures(frame, result); // a frame tracked without them: a key-frame has them
     result.keyframe = makeKeyFrame(result, *frame.features, keptCloudPtr(frame, result));
     keyframe_image = std::move(frame.image);
     result.reference_keyframe = result.keyframe->id;

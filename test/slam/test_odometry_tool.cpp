@@ -177,6 +177,27 @@ TEST_F(OdometryTool, TheLookAheadChangesNoPose)
   // Frame 0 has no frame before it, 5 is unreadable, 6 follows it.
   EXPECT_EQ(ahead(with), "extracted_ahead011110011111");
   EXPECT_EQ(ahead(without), "extracted_ahead000000000000");
+
+  // With no features wanted (-features-every 0), look-ahead or not: the same poses, and
+  // summary.json counts the frames tracked without them.
+  const fs::path none_with = dir_ / "none_with", none_without = dir_ / "none_without";
+  ASSERT_EQ(runOdometry(in + none_with.string() + "' -features-every 0 -quiet", log_), 0)
+      << readAll(log_);
+  ASSERT_EQ(
+      runOdometry(in + none_without.string() + "' -features-every 0 -no-lookahead -quiet",
+                  log_),
+      0)
+      << readAll(log_);
+  EXPECT_EQ(readAll(none_with / "poses_kitti.txt"),
+            readAll(none_without / "poses_kitti.txt"));
+  const auto features = [](const fs::path& out) {
+    return nlohmann::json::parse(readAll(out / "summary.json"))["features"];
+  };
+  EXPECT_EQ(features(with)["every"].get<int>(), 1);
+  EXPECT_EQ(features(with)["frames_without"].get<int>(), 0);
+  EXPECT_EQ(features(none_with)["every"].get<int>(), 0);
+  EXPECT_EQ(features(none_with)["frames_without"].get<int>(),
+            features(none_without)["frames_without"].get<int>());
 }
 
 TEST_F(OdometryTool, AnErrorMidRunStillWritesTheFramesBeforeItAndExitsThree)
@@ -251,6 +272,10 @@ TEST_F(OdometryTool, BadArgumentsExitOneBeforeAnyWork)
             1);
   EXPECT_NE(readAll(log_).find("weak_feature_share must be in [0, 1], got 1.5"),
             std::string::npos)
+      << readAll(log_);
+  EXPECT_EQ(
+      runOdometry("-input . -output '" + out.string() + "' -features-every -1", log_), 1);
+  EXPECT_NE(readAll(log_).find("-features-every -1 (>= 0)"), std::string::npos)
       << readAll(log_);
   EXPECT_FALSE(fs::exists(out)) << "bad arguments must fail before any work";
   EXPECT_EQ(runOdometry("-h", log_), 0);

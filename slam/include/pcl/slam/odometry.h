@@ -110,6 +110,10 @@ struct OdometryFrameResult
   /// is motion-compensated, its raster and ORB features. Their timings are those of that
   /// thread.
   bool extracted_ahead = false;
+  /// Tracked by the dense step alone from the constant-velocity prior, with no raster
+  /// or ORB features made (Odometry::setFeaturesWanted): features is null and
+  /// num_features 0, unless the frame became a key-frame, which always has them.
+  bool features_skipped = false;
   OdometryTimings timings;
 };
 
@@ -492,6 +496,19 @@ public:
   /// prediction, status kSkipped, never a key-frame.
   OdometryFrameResult
   skipFrame(double timestamp_s, std::size_t frame_index, const std::string& reason);
+
+  /// \brief Whether the caller needs the next frames' features (default: yes).
+  ///
+  /// When not, a frame whose dense step from the constant-velocity prior alone pairs
+  /// most of its points, constrains every direction and stays within the vehicle's
+  /// dynamics of the prior (KISS-ICP's way of tracking) is taken as it is: no raster,
+  /// ORB or matching, about 4 of the 10 ms of an HDL-64 frame (doc/odometry.md,
+  /// "Features on demand"). Any other frame, one without a tracked velocity, and every
+  /// key-frame are tracked and made as usual. For a caller that uses the features only
+  /// now and then, as MapLocalization off the map does between its placements;
+  /// RastSlam's tracking keeps them.
+  void setFeaturesWanted(bool wanted);
+  bool featuresWanted() const;
 
   const OdometryParams& params() const;
 
