@@ -254,6 +254,11 @@ run(int argc, char** argv)
       "compute each scan's ground, raster and ORB on the main thread after the "
       "scan before, not on a second thread while it is tracked",
       &no_lookahead);
+  bool all_features = false;
+  args.addSwitch("all-features",
+                 "make every scan's raster features, also between the placement attempts "
+                 "off the map, where the dense step alone tracks most scans",
+                 &all_features);
   args.addSwitch("software-render", "render.png with OpenCV instead of VTK (faster)",
                  &software_render);
   args.addSwitch("quiet", "no progress bar", &quiet);
@@ -261,6 +266,7 @@ run(int argc, char** argv)
     return kExitOk;
   installStopSignals();
   params.confirm_tentative_by_alignment = !no_tentative_alignment;
+  params.features_on_demand = !all_features;
   if (no_merged_keyframes)
     params.merged_keyframes_within_m = 0.0;
 
@@ -366,7 +372,8 @@ run(int argc, char** argv)
   std::optional<ProgressBar> bar;
   if (!quiet)
     bar.emplace("Localize", reader.size());
-  std::size_t placements_tried = 0, prepared_ahead = 0, alignment_ahead = 0;
+  std::size_t placements_tried = 0, prepared_ahead = 0, alignment_ahead = 0,
+              features_skipped = 0;
   const pcl::StopWatch run_watch;
   // Scans are read a few ahead on a thread of their own (about 2 ms a frame).
   Prefetcher prefetcher(reader, 4);
@@ -402,6 +409,7 @@ run(int argc, char** argv)
     placements_tried += f.placement_tried ? 1 : 0;
     prepared_ahead += f.odometry_prepared_ahead ? 1 : 0;
     alignment_ahead += f.alignment_prepared_ahead ? 1 : 0;
+    features_skipped += f.odometry_features_skipped ? 1 : 0;
     if (f.status == rast::LocalizationStatus::kLocalized && first_localized < 0)
       first_localized = static_cast<int>(i);
     if (f.jump) {
@@ -540,6 +548,8 @@ run(int argc, char** argv)
       {"merged_keyframes_within_m", params.merged_keyframes_within_m},
       {"target_voxel_m", params.alignment.target_voxel_size_m}, // the sensor preset's
       {"degeneracy_min_ratio", params.alignment.degeneracy_min_ratio}};
+  summary["odometry_features"] = {{"on_demand", params.features_on_demand},
+                                  {"frames_without", features_skipped}};
   summary["lookahead"] = {{"on", !no_lookahead},
                           {"frames_prepared_ahead", prepared_ahead},
                           {"alignment_sources_prepared_ahead", alignment_ahead}};

@@ -272,6 +272,9 @@ struct MapLocalization::Impl
   std::deque<double> recent_rmse; ///< of the last confirmed alignments, since a placement
   int failed_placements = 0;      ///< placement attempts in a row that placed nothing
   std::size_t last_attempt_frame = 0; ///< the frame (count) of the last attempt
+  /// The back-off found this frame's prediction far from the map (far_now) and the
+  /// previous frame's (far_before, read before this frame's is known).
+  bool far_now = false, far_before = false;
   double travelled_m = 0.0; ///< by the predictions since the map last confirmed a pose
 
   /// Where this frame's prediction may be on the map (MapLocalizationParams::
@@ -315,6 +318,23 @@ struct MapLocalization::Impl
     if (recentWithinWindow())
       return true; // a tentative placement waits for a second one to agree
     return frames - last_attempt_frame >= static_cast<std::size_t>(placementEvery(far));
+  }
+
+  /// Whether this frame's placement will likely use the odometry's features of the
+  /// scan (MapLocalizationParams::features_on_demand). Asked before the odometry runs,
+  /// so before this frame is known to be near the map or far from it: the previous
+  /// frame's schedule. An attempt due when the odometry made none describes the scan
+  /// itself: so does the rare one that agrees at once with a tentative placement that a
+  /// background attempt, taken this frame, left.
+  bool featuresWanted() const
+  {
+    if (!params.features_on_demand || params.placement_backoff_after == 0 ||
+        failed_placements < params.placement_backoff_after || recentWithinWindow())
+      return true;
+    if (pending)
+      return false; // nothing else is tried while one runs
+    return frames - last_attempt_frame >=
+           static_cast<std::size_t>(placementEvery(far_before));
   }
 
   /// Distance [m] from \a predicted to the nearest session key-frame of the map when
@@ -436,6 +456,7 @@ struct MapLocalization::Impl
   {
     started = true;
     ++frames;
+    far_before = std::exchange(far_now, false);
     LocalizationFrame f;
     f.frame_index = frame_index;
     f.timestamp_s = timestamp_s;
@@ -987,6 +1008,7 @@ struct MapLocalization::Impl
                                   Pose3d& step)
   {
     restartOdometryIfStale();
+    odometry->setFeaturesWanted(featuresWanted());
     const OdometryFrameResult odo =
         next
             ? odometry->processFrame(scan, timestamp_s, frame_index, point_times_s, *next)
@@ -1253,6 +1275,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
       step = *velocity_step;
     f.odometry_ran = true;
     f.odometry_prepared_ahead = odo->extracted_ahead;
+    f.odometry_features_skipped = odo->features_skipped;
     motion.odometry_tracked = odo->status == TrackingStatus::kFeatures ||
                               odo->status == TrackingStatus::kDenseFallback;
   };
@@ -1392,13 +1415,16 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
           ? m.farFromMap(predicted)
           : std::nullopt; // only the back-off's schedule depends on it
   const bool far = far_m.has_value();
+  m.far_now = far;
   // The candidates' neighbourhoods are verified unless the back-off found the
   // prediction far from the map: there a placement is unlikely, and on every attempt
   // they cost a run that starts off the map 30 % of its frame rate (simulated;
   // doc/session.md, session 47).
   PlacementOptions options;
   options.neighbourhoods = !far;
-  if (!odo->features || odo->features->empty() || !has_points) {
+  // Features the odometry did not make (features_on_demand) come from the scan itself.
+  const bool no_features = !odo->features || odo->features->empty();
+  if (!has_points || (no_features && !odo->features_skipped)) {
     placement.message = "no features: " + odo->message;
   } else if (!m.placementDue(far)) {
     placement.message = !collected.empty()
@@ -1412,7 +1438,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
     f.placement_tried = true;
     f.placement_with_neighbourhoods = options.neighbourhoods;
     KeyFrame query;
-    const bool own_features = scan() != raw_scan && !odo->deskew_applied;
+    const bool own_features = (scan() != raw_scan && !odo->deskew_applied) || no_features;
     if (!own_features)
       query.features = *odo->features;
     query.cloud = scan();
@@ -1437,7 +1463,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
   } else {
     f.placement_tried = true;
     f.placement_with_neighbourhoods = options.neighbourhoods;
-    if (scan() != raw_scan && !odo->deskew_applied) {
+    if ((scan() != raw_scan && !odo->deskew_applied) || no_features) {
       placement = placeWithPrior(m.localizer, scan(), prior, options);
     } else {
       KeyFrame query;

@@ -648,12 +648,18 @@ TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
     const bool background = every > lag && lag > 0;
     MapLocalization localization(*m.localizer, m.odometry, params);
     std::vector<LocalizationFrame> frames;
-    int tried_off = 0, first_localized = -1, collected = 0, failed = 0;
+    int tried_off = 0, first_localized = -1, collected = 0, failed = 0, no_features = 0;
     for (std::size_t i = 0; i < 18; ++i) {
       const LocalizationFrame f = addScan(localization, i, lookahead);
       frames.push_back(f);
       EXPECT_NE(f.status, LocalizationStatus::kLocalized) << "frame " << i << ": " << f.message;
       tried_off += f.placement_tried ? 1 : 0;
+      // Backed off, the odometry makes the features of the frames that try a placement
+      // (features_on_demand) and may skip the others'; before, every frame tries.
+      no_features += f.odometry_features_skipped ? 1 : 0;
+      if (f.placement_tried || i < 6) {
+        EXPECT_FALSE(f.odometry_features_skipped) << "frame " << i << ": " << f.message;
+      }
       const bool started =
           f.message.find("started in the background") != std::string::npos;
       if (f.placement_tried && i >= 6) {
@@ -708,6 +714,11 @@ TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
     // taken on the map.
     EXPECT_EQ(tried_off, every == 1 ? 18 : 10);
     EXPECT_EQ(collected, background ? 3 : 0);
+    if (every == 1) {
+      EXPECT_EQ(no_features, 0);
+    } else {
+      EXPECT_GT(no_features, 0) << "frames between the attempts";
+    }
     ASSERT_GE(first_localized, 0) << "never localized on the map";
     // The first placement tried on the map places it: at once, or a frame later.
     EXPECT_LT(first_localized, every + (background ? lag : 0));
@@ -760,7 +771,7 @@ TEST(MapLocalization, AttemptsFarFromTheMapAreFewerAndLater)
     MapLocalization localization(*m.localizer, m.odometry, schedule(far_radius_m, 0.2));
     localization.setInitialPose(start);
     std::vector<std::size_t> started;
-    int far_notes = 0;
+    int far_notes = 0, no_features = 0;
     for (std::size_t i = 0; i < 24; ++i) {
       const LocalizationFrame f =
           localization.addScan(simulateFrame(*elsewhere, i), elsewhere->timestamp(i), i);
@@ -769,6 +780,11 @@ TEST(MapLocalization, AttemptsFarFromTheMapAreFewerAndLater)
       if (f.message.find("started in the background") != std::string::npos)
         started.push_back(i);
       far_notes += f.message.find("far from the map: ") != std::string::npos ? 1 : 0;
+      // Its features were made for the attempt: the schedule, far or near, was known.
+      if (f.placement_tried) {
+        EXPECT_FALSE(f.odometry_features_skipped) << "frame " << i << ": " << f.message;
+      }
+      no_features += f.odometry_features_skipped ? 1 : 0;
       // Far from the map the attempts leave the candidates' neighbourhoods out.
       if (f.placement_tried) {
         EXPECT_EQ(f.placement_with_neighbourhoods,
@@ -795,6 +811,7 @@ TEST(MapLocalization, AttemptsFarFromTheMapAreFewerAndLater)
         started.size(),
         far_notes);
     EXPECT_EQ(far_notes > 0, far_expected);
+    EXPECT_GT(no_features, 0) << "the frames between the attempts make no features";
   }
   // The drift allowance grows with the distance driven, so the same drive turns from
   // far to near: an attempt started far (taken 3 frames later) may still run when the

@@ -96,6 +96,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_EQ(summary["placement"]["neighbourhood_keyframes"].get<int>(), 0);
   EXPECT_TRUE(summary["placement"]["track_on_map"].get<bool>());
   EXPECT_TRUE(summary["lookahead"]["on"].get<bool>());
+  EXPECT_TRUE(summary["odometry_features"]["on_demand"].get<bool>());
   EXPECT_EQ(summary["map_alignment"]["merged_keyframes_within_m"].get<double>(), 10.0);
 
   // In the map's frame: where the SLAM run put the same scans.
@@ -140,18 +141,22 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_EQ(summary2["placement"]["min_inliers"].get<int>(), 38);
   EXPECT_EQ(summary2["placement"]["neighbourhood_keyframes"].get<int>(), 3);
 
-  // Without the odometry's look-ahead: the same poses (MapLocalization's own test
-  // compares them off the map, where the odometry runs on every frame).
+  // Without the odometry's look-ahead, and with every scan's features: the same poses
+  // (MapLocalization's own test compares them off the map, where the odometry runs on
+  // every frame; on the map no placement backs off, so every frame wants its features).
   const fs::path out3 = dir_ / "out3";
   ASSERT_EQ(run("-session " + quoted(m.session) + " -input " + quoted(m.scans) +
                 " -output " + quoted(out3) +
-                " -first 10 -software-render -quiet -no-lookahead"),
+                " -first 10 -software-render -quiet -no-lookahead -all-features"),
             0)
       << readFile(log_);
   EXPECT_EQ(readFile(out3 / "poses_kitti.txt"), readFile(out / "poses_kitti.txt"));
   const auto summary3 = nlohmann::json::parse(readFile(out3 / "summary.json"));
   EXPECT_FALSE(summary3["lookahead"]["on"].get<bool>());
   EXPECT_EQ(summary3["lookahead"]["frames_prepared_ahead"].get<int>(), 0);
+  EXPECT_FALSE(summary3["odometry_features"]["on_demand"].get<bool>());
+  EXPECT_EQ(summary["odometry_features"]["frames_without"].get<int>(), 0);
+  EXPECT_EQ(summary3["odometry_features"]["frames_without"].get<int>(), 0);
 }
 
 /// A drive that enters the map from a road the map lacks: 24 scans of another world,
@@ -218,6 +223,8 @@ TEST_F(LocalizeTool, FramesBeforeALatePlacementAreRevisedBackwards)
   EXPECT_GE(backtracked, 1);
   EXPECT_EQ(summary["frames_localized"].get<int>(),
             summary_plain["frames_localized"].get<int>() + backtracked);
+  // Backed off, off the map, the odometry made the features of the attempts' scans only.
+  EXPECT_GT(summary["odometry_features"]["frames_without"].get<int>(), 0);
 
   const std::vector<std::string> lines = rows(out / "status.csv");
   ASSERT_EQ(lines.size(), 55u);

@@ -376,6 +376,12 @@ struct MapLocalizationParams
   /// cached: the frames after the placement come out as without backtracking. A thinned
   /// copy of each such scan is kept meanwhile (at most 32768 points, 256 kB). 0: none.
   int backtrack_frames = 20;
+  /// Backed off, the odometry makes a scan's raster features only when a placement may
+  /// need them this frame (Odometry::setFeaturesWanted): between the back-off's
+  /// attempts a frame its dense step tracks alone from the prior skips them. The poses
+  /// of those frames come from the dense step as before; only the features' cross-checks
+  /// are left out there. false: every frame has its features.
+  bool features_on_demand = true;
   /// \brief Whether all values are usable; on failure \a why (if not null) says which.
   bool isValid(std::string* why = nullptr) const;
 };
@@ -410,6 +416,9 @@ struct LocalizationFrame
   /// from the map).
   bool placement_with_neighbourhoods = false;
   bool odometry_ran = false; ///< the odometry tracked this frame (see track_on_map)
+  /// ... without making the scan's features: no placement could use them this frame
+  /// (MapLocalizationParams::features_on_demand).
+  bool odometry_features_skipped = false;
   /// ... and took the scan prepared ahead (addScan with a look-ahead scan).
   bool odometry_prepared_ahead = false;
   /// The map alignment took its source (the scan's voxel planes) prepared ahead, while
