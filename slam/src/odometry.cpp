@@ -429,12 +429,6 @@ Odometry::setFeaturesWanted(bool wanted)
   impl_->features_wanted = wanted;
 }
 
-bool
-Odometry::featuresWanted() const
-{
-  return impl_->features_wanted;
-}
-
 std::size_t
 Odometry::numKeyFrames() const
 {

@@ -352,7 +352,8 @@ struct Odometry::Impl
   /// Steps 0-1 of a scan (range check, point times, ground removal), then, with
   /// \a motion or when the scan has no times to compensate, steps 2-3 (finishPrepare). No
   /// state of the tracking is read or written (only \a front and params): the look-ahead
-  /// runs it on its thread. \a point_times are checked here (unusable ones are ignored);
+  /// runs it on its thread. Without \a features, steps 2-3 wait for the caller
+  /// (process). \a point_times are checked here (unusable ones are ignored);
   /// with \a keep_times the frame keeps a copy of them, else they must outlive the frame.
   /// \a frame_interval_s is the period of azimuth times.
   Prepared prepare(FrontEnd& front,
@@ -362,7 +363,7 @@ struct Odometry::Impl
                    double frame_interval_s,
                    const SweepMotion* motion,
                    OdometryFrameResult result,
-                   bool features = true) const;
+                   bool features) const;
   /// Steps 2-3 of a prepared frame: the non-ground points compensated with \a motion
   /// (when the scan has times and the motion a velocity), the raster, ORB. (The dense
   /// step's source points are chosen and compensated on the caller's thread: process.)

@@ -508,7 +508,6 @@ public:
   /// now and then, as MapLocalization off the map does between its placements;
   /// RastSlam's tracking keeps them.
   void setFeaturesWanted(bool wanted);
-  bool featuresWanted() const;
 
   const OdometryParams& params() const;
 
