@@ -321,20 +321,14 @@ struct MapLocalization::Impl
   }
 
   /// Whether this frame's placement will likely use the odometry's features of the
-  /// scan (MapLocalizationParams::features_on_demand). Asked before the odometry runs,
-  /// so before this frame is known to be near the map or far from it: the previous
-  /// frame's schedule. An attempt due when the odometry made none describes the scan
+  /// scan (MapLocalizationParams::features_on_demand): when one is due by the previous
+  /// frame's schedule, near the map or far from it (this frame's is known only after the
+  /// odometry ran). An attempt due when the odometry made none describes the scan
   /// itself: so does the rare one that agrees at once with a tentative placement that a
   /// background attempt, taken this frame, left.
   bool featuresWanted() const
   {
-    if (!params.features_on_demand || params.placement_backoff_after == 0 ||
-        failed_placements < params.placement_backoff_after || recentWithinWindow())
-      return true;
-    if (pending)
-      return false; // nothing else is tried while one runs
-    return frames - last_attempt_frame >=
-           static_cast<std::size_t>(placementEvery(far_before));
+    return !params.features_on_demand || placementDue(far_before);
   }
 
   /// Distance [m] from \a predicted to the nearest session key-frame of the map when
