@@ -244,6 +244,9 @@ def main():
     ap.add_argument("--localize-args", default="",
                     help="extra arguments of every pcl_rast_localize run, e.g. "
                          "'-place-min-inliers 30'")
+    ap.add_argument("--slam-args", default="",
+                    help="extra arguments of every pcl_rast_slam run (the map, the second "
+                         "drive alone and the merge), e.g. '-features-on-demand'")
     a = ap.parse_args()
     tools = os.path.join(a.build, "tools")
     out = os.path.join(a.out, a.seq)
@@ -258,6 +261,8 @@ def main():
         print("pcl_rast_simulate with %s" % a.sim_args, flush=True)
     if a.localize_args:
         print("pcl_rast_localize with %s" % a.localize_args, flush=True)
+    if a.slam_args:
+        print("pcl_rast_slam with %s" % a.slam_args, flush=True)
 
     sim = os.path.join(out, "sim")
     if not os.path.exists(os.path.join(sim, "poses.txt")):
@@ -275,7 +280,8 @@ def main():
     common = ["-quiet", "-software-render"]
 
     def tool(name, args, log):
-        extra = a.localize_args.split() if name == "pcl_rast_localize" else []
+        extra = {"pcl_rast_localize": a.localize_args,
+                 "pcl_rast_slam": a.slam_args}.get(name, "").split()
         rc, s = run([os.path.join(tools, name)] + args + extra + common, os.path.join(out, log))
         if rc != 0:
             sys.exit("%s failed (exit %d): see %s/%s" % (name, rc, out, log))

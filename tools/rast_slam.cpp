@@ -267,6 +267,7 @@ run(int argc, char** argv)
   bool no_ba = false;
   bool ba = false;
   bool global_ba = defaults.loop_closing.global_bundle_adjustment;
+  bool features_on_demand = defaults.features_on_demand;
   double map_leaf_m = 0.2;
   bool software_render = false, quiet = false;
   std::string sensor = "auto";
@@ -312,6 +313,11 @@ run(int argc, char** argv)
                    "global bundle adjustment after each pose-graph optimisation "
                    "(comparison, slow)",
                    &global_ba);
+  parser.addSwitch(
+      "features-on-demand",
+      "tracking makes a scan's features only where its dense step cannot track "
+      "it alone (key-frames always have them; doc/odometry.md)",
+      &features_on_demand);
   parser.addInt("young-map-scans",
                 "tracking: every scan joins the local map while it holds fewer (1: key-frames "
                 "only; see doc/odometry.md)",
@@ -391,6 +397,7 @@ run(int argc, char** argv)
   if (no_ba)
     params.local_mapping.enable_bundle_adjustment = false;
   params.loop_closing.global_bundle_adjustment = global_ba;
+  params.features_on_demand = features_on_demand;
   std::string why;
   if (!params.isValid(&why))
     throw std::invalid_argument("invalid parameters: " + why);
@@ -814,6 +821,7 @@ run(int argc, char** argv)
     summary["memory_mb"][part] = bytes / (1024.0 * 1024.0);
   summary["loop_edges"] = loop_json;
   summary["tracking_status"] = stats.tracking_status;
+  summary["frames_without_features"] = stats.frames_without_features;
   summary.update(degraded.toJson());
   json timing;
   for (const auto& [stage, t] : stats.timing)
@@ -843,6 +851,7 @@ run(int argc, char** argv)
       {"lookahead", !no_lookahead},
       {"local_ba", params.local_mapping.enable_bundle_adjustment},
       {"global_ba", params.loop_closing.global_bundle_adjustment},
+      {"features_on_demand", params.features_on_demand},
       {"map_leaf_m", map_leaf_m},
       {"first", first},
       {"last", last},

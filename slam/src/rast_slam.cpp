@@ -110,6 +110,7 @@ struct RastSlam::Impl
   /// still held (see releaseFinishedFeatures), oldest first.
   std::deque<KeyFrameId> features_to_release;
   std::map<std::string, std::size_t> status_counts;
+  std::size_t without_features = 0; ///< frames tracked without their features
   std::size_t skipped = 0, accepted = 0, rejected = 0, inconsistent = 0, candidates = 0;
   std::vector<LoopRecord> loop_records;
   RastSlam::KeyFrameObserver observer; ///< set before the first scan, then read only
@@ -121,6 +122,8 @@ struct RastSlam::Impl
     , local_mapping(p.local_mapping, map)
     , detector(p.loop_detector, std::move(store))
   {
+    if (p.features_on_demand)
+      odometry.setFeaturesWanted(false);
     if (p.loop_closing.global_bundle_adjustment)
       map->setKeepCulledMapPoints(true);
     // The map owns the key-frame poses; the loop database reads them there.
@@ -381,6 +384,7 @@ struct RastSlam::Impl
       tracking_ms.push_back(r.timings.total_ms);
       ++status_counts[rec.status];
       skipped += is_skipped ? 1 : 0;
+      without_features += r.features_skipped ? 1 : 0;
     }
     if (!r.keyframe)
       return;
@@ -594,6 +598,7 @@ RastSlam::statistics() const
   s.memory_bytes["loop_appearance_features"] = loop_memory.appearance_features;
   std::lock_guard<std::mutex> lock(impl_->stats_mutex);
   s.skipped_frames = impl_->skipped;
+  s.frames_without_features = impl_->without_features;
   s.loops_accepted = impl_->accepted;
   s.loops_rejected = impl_->rejected;
   s.loops_inconsistent = impl_->inconsistent;

@@ -112,8 +112,9 @@ TEST(OdometryFeaturesOnDemand, FramesTheDenseStepTracksAloneSkipTheirFeatures)
     } else {
       ASSERT_TRUE(f.features) << "frame " << i << ": " << f.message;
     }
-    if (f.keyframe)
+    if (f.keyframe) {
       EXPECT_FALSE(f.keyframe->features.empty()) << "key-frame at frame " << i;
+    }
   }
   for (std::size_t i = 0; i < 3; ++i)
     EXPECT_FALSE(c.none.frames[i].features_skipped)

@@ -177,6 +177,40 @@ TEST(RastSlam, MapPointsAreBuiltOnlyForABundleAdjustment)
   EXPECT_GT(plain.map_points, 1000u);
 }
 
+TEST(RastSlam, FeaturesOnDemandSkipFramesButNotKeyFramesNorTheLoop)
+{
+  // Tracking's dense step alone, from the constant-velocity prior, carries most frames
+  // of this drive; key-frames still have their features, so the loop is still found.
+  SlamParams params = deterministicParams();
+  params.features_on_demand = true;
+  const LoopSequence& s = loopSequence();
+  RastSlam slam(params);
+  std::size_t skipped = 0, keyframes = 0, keyframes_with_features = 0;
+  for (std::size_t i = 0; i < s.clouds.size(); ++i) {
+    const OdometryFrameResult r = slam.addScan(s.clouds[i], s.times[i], i);
+    skipped += r.features_skipped ? 1 : 0;
+    if (r.keyframe) {
+      ++keyframes;
+      keyframes_with_features += r.keyframe->features.empty() ? 0 : 1;
+      EXPECT_FALSE(r.features_skipped) << "key-frame at frame " << i;
+    }
+  }
+  slam.finish();
+  const SlamStatistics stats = slam.statistics();
+  EXPECT_EQ(stats.frames_without_features, skipped);
+  EXPECT_GT(skipped, s.clouds.size() / 2) << "frames tracked without features";
+  EXPECT_GT(keyframes, 5u);
+  EXPECT_EQ(keyframes_with_features, keyframes);
+  EXPECT_GE(stats.loops_accepted, 1u);
+  const double ate = evaluateTrajectory(slam.framePoses(), s.gt).ate_rmse_m;
+  EXPECT_LT(ate, 0.1) << "ATE " << ate << " m";
+  std::cout << skipped << " of " << s.clouds.size() << " frames without features, "
+            << keyframes << " key-frames, " << stats.loops_accepted << " loops, ATE "
+            << ate << " m\n";
+  // The default makes every frame's features.
+  EXPECT_EQ(runSlam(deterministicParams()).stats.frames_without_features, 0u);
+}
+
 TEST(RastSlam, SpillingToDiskChangesNothingButMemory)
 {
   const std::filesystem::path dir = pcl_rast_test::makeTempDir("spill");

@@ -208,6 +208,27 @@ TEST_F(SlamTool, TheVisibilityMarginIsHandedToTheOdometry)
       << "off by default";
 }
 
+/// -features-on-demand: recorded in the summary with the frames that skipped their
+/// features; off by default, where no frame skips them.
+TEST_F(SlamTool, FeaturesOnDemandAreCountedInTheSummary)
+{
+  const fs::path seq = sequenceDir();
+  const std::string in = "-input '" + seq.string() + "' -gt '" +
+                         (seq / "poses.txt").string() + "' -software-render -output '";
+  const fs::path on = dir_ / "on", off = dir_ / "off";
+  ASSERT_EQ(runTool(in + on.string() + "' -features-on-demand", log_), 0)
+      << readFile(log_);
+  ASSERT_EQ(runTool(in + off.string() + "'", log_), 0) << readFile(log_);
+  const auto with = nlohmann::json::parse(readFile(on / "summary.json"));
+  const auto without = nlohmann::json::parse(readFile(off / "summary.json"));
+  EXPECT_TRUE(with["params"]["features_on_demand"].get<bool>());
+  EXPECT_FALSE(without["params"]["features_on_demand"].get<bool>());
+  EXPECT_GT(with["frames_without_features"].get<int>(), 0);
+  EXPECT_LT(with["frames_without_features"].get<int>(), with["frames"].get<int>());
+  EXPECT_EQ(without["frames_without_features"].get<int>(), 0);
+  EXPECT_LT(with["ate_rmse_m"].get<double>(), 1.0);
+}
+
 /// The next scan prepared on a second thread (the default): in deterministic mode the
 /// run is the same without it, file for file; the sequence's corrupt frame 12 is not
 /// prepared ahead.

@@ -114,6 +114,11 @@ struct SlamParams
   /// folder, which vanishes with the process. Memory then no longer grows with them.
   /// Empty: kept in memory.
   std::string spill_directory;
+  /// true: tracking makes a scan's raster features only where it needs them
+  /// (Odometry::setFeaturesWanted(false)): a frame whose dense step tracks it alone from
+  /// the constant-velocity prior, with the checks of that path, skips them; key-frames
+  /// and every other frame have them.
+  bool features_on_demand = false;
 
   bool isValid(std::string* why = nullptr) const;
 };
@@ -134,6 +139,8 @@ struct SlamStatistics
 {
   std::size_t frames = 0;          ///< input frames (skipped included)
   std::size_t skipped_frames = 0;  ///< frames without a usable scan
+  /// Frames tracked without making their features (SlamParams::features_on_demand).
+  std::size_t frames_without_features = 0;
   std::size_t keyframes = 0;
   std::size_t map_points = 0;         ///< live (local map) map points
   std::size_t map_points_created = 0; ///< ever created
