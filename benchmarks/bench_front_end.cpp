@@ -82,6 +82,54 @@ skipWithoutData(benchmark::State& state)
   return true;
 }
 
+/// Reading one scan file as the tools do (SequenceReader::read): the real HDL-64 PCDs of
+/// kitti-raw-22 (binary float32 x y z intensity, about 120 000 points).
+void
+BM_ReadScan(benchmark::State& state)
+{
+  if (skipWithoutData(state))
+    return;
+  const rast::SequenceReader reader(std::string(PCL_RAST_SHARED_DATA_DIR) +
+                                    "/kitti-raw-22");
+  std::size_t i = 0;
+  for (auto _ : state) {
+    const rast::ScanFrame frame = reader.read(i++ % reader.size());
+    benchmark::DoNotOptimize(frame.cloud->size());
+  }
+}
+BENCHMARK(BM_ReadScan)->Unit(benchmark::kMillisecond);
+
+/// The same for simulated raw sweeps written as the simulator writes them: binary PCD
+/// with a float32 time field, read with the points' times.
+void
+BM_ReadScanWithTimes(benchmark::State& state)
+{
+  static const std::string folder = [] {
+    rast::PathParams path;
+    path.type = rast::PathType::kLoop;
+    path.num_frames = 10;
+    rast::LidarSimulatorParams params;
+    params.seed = 17;
+    params.num_threads = 2; // building the data only, not measured
+    params.raw_sweep = true;
+    rast::LidarSimulator sim(params, rast::generatePath(path));
+    const std::string dir =
+        (std::filesystem::temp_directory_path() / "pcl_rast_bench_read_scan").string();
+    sim.writeSequence(dir, rast::ScanFormat::kPcd, 0, sim.numFrames() - 1);
+    return dir;
+  }();
+  const rast::SequenceReader reader(folder);
+  std::size_t i = 0, with_times = 0;
+  for (auto _ : state) {
+    const rast::ScanFrame frame = reader.read(i++ % reader.size());
+    with_times += frame.point_times_s.empty() ? 0 : 1;
+    benchmark::DoNotOptimize(frame.cloud->size());
+  }
+  if (with_times == 0)
+    state.SkipWithError("the simulated sweeps were read without their times");
+}
+BENCHMARK(BM_ReadScanWithTimes)->Unit(benchmark::kMillisecond);
+
 void
 BM_GroundRemoval(benchmark::State& state)
 {

@@ -324,6 +324,42 @@ blobToCloud(const std::string& path,
     times->values.reserve(num_points);
   }
 
+  // The common layout, every field read float32 (as the simulator, most drivers and
+  // KITTI conversions write them): no per-value type switch, and the points written in
+  // place. The same points, values and times as the general loop below.
+  const auto isFloat32 = [](const pcl::PCLPointField* f) {
+    return !f || f->datatype == pcl::PCLPointField::FLOAT32;
+  };
+  if (isFloat32(fx) && isFloat32(fy) && isFloat32(fz) && isFloat32(fi) && isFloat32(ft)) {
+    auto& points = cloud.points;
+    std::size_t n = points.size();
+    points.resize(n + num_points);
+    for (std::size_t r = 0; r < blob.height; ++r) {
+      const std::uint8_t* row = blob.data.data() + r * blob.row_step;
+      if (ft)
+        times->startRow();
+      for (std::size_t c = 0; c < blob.width; ++c) {
+        const std::uint8_t* pt = row + c * blob.point_step;
+        const float x = load<float>(pt + fx->offset);
+        const float y = load<float>(pt + fy->offset);
+        const float z = load<float>(pt + fz->offset);
+        if (!(std::isfinite(x) && std::isfinite(y) && std::isfinite(z))) {
+          ++num_dropped;
+          continue;
+        }
+        pcl::PointXYZI& p = points[n++];
+        p.x = x;
+        p.y = y;
+        p.z = z;
+        const float intensity = fi ? load<float>(pt + fi->offset) : 0.0f;
+        p.intensity = std::isfinite(intensity) ? intensity : 0.0f;
+        if (ft)
+          times->add(load<float>(pt + ft->offset));
+      }
+    }
+    points.resize(n);
+    return;
+  }
   cloud.reserve(num_points);
   for (std::size_t r = 0; r < blob.height; ++r) {
     const std::uint8_t* row = blob.data.data() + r * blob.row_step;
