@@ -82,6 +82,21 @@ skipWithoutData(benchmark::State& state)
   return true;
 }
 
+/// A simulated HDL-64 making raw sweeps along the rounded-rectangle loop (seed 17),
+/// \a frames long.
+rast::LidarSimulator
+rawSweepSimulator(int frames)
+{
+  rast::PathParams path;
+  path.type = rast::PathType::kLoop;
+  path.num_frames = frames;
+  rast::LidarSimulatorParams params;
+  params.seed = 17;
+  params.num_threads = 2; // building the data only, not measured
+  params.raw_sweep = true;
+  return rast::LidarSimulator(params, rast::generatePath(path));
+}
+
 /// Reading one scan file as the tools do (SequenceReader::read): the real HDL-64 PCDs of
 /// kitti-raw-22 (binary float32 x y z intensity, about 120 000 points).
 void
@@ -105,14 +120,7 @@ void
 BM_ReadScanWithTimes(benchmark::State& state)
 {
   static const std::string folder = [] {
-    rast::PathParams path;
-    path.type = rast::PathType::kLoop;
-    path.num_frames = 10;
-    rast::LidarSimulatorParams params;
-    params.seed = 17;
-    params.num_threads = 2; // building the data only, not measured
-    params.raw_sweep = true;
-    rast::LidarSimulator sim(params, rast::generatePath(path));
+    const rast::LidarSimulator sim = rawSweepSimulator(10);
     const std::string dir =
         (std::filesystem::temp_directory_path() / "pcl_rast_bench_read_scan").string();
     sim.writeSequence(dir, rast::ScanFormat::kPcd, 0, sim.numFrames() - 1);
@@ -228,14 +236,7 @@ const Drive&
 rawSweepDrive()
 {
   static const Drive d = [] {
-    rast::PathParams path;
-    path.type = rast::PathType::kLoop;
-    path.num_frames = 100;
-    rast::LidarSimulatorParams params;
-    params.seed = 17;
-    params.num_threads = 2; // building the data only, not measured
-    params.raw_sweep = true;
-    rast::LidarSimulator sim(params, rast::generatePath(path));
+    const rast::LidarSimulator sim = rawSweepSimulator(100);
     Drive out;
     for (std::size_t i = 0; i < sim.numFrames(); ++i) {
       auto cloud = std::make_shared<Cloud>();

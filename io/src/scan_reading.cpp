@@ -282,6 +282,63 @@ checkAndCentreTimes(const RawTimes& raw, PointTimes& out)
   out.field = raw.field->name;
 }
 
+/// The fields blobToCloud reads (intensity and time may be null).
+struct PointFields
+{
+  const pcl::PCLPointField *x, *y, *z, *intensity, *time;
+};
+
+/// The finite points of \a blob appended to \a cloud (written in place), their raw times
+/// to \a times when fields.time is set; kFloat32: every field is float32.
+template <bool kFloat32>
+void
+convertPoints(const pcl::PCLPointCloud2& blob,
+              const PointFields& fields,
+              pcl::PointCloud<pcl::PointXYZI>& cloud,
+              std::size_t& num_dropped,
+              RawTimes* times)
+{
+  const auto value = [](const std::uint8_t* pt, const pcl::PCLPointField& f) -> float {
+    if constexpr (kFloat32)
+      return load<float>(pt + f.offset);
+    else
+      return fieldAs<float>(pt + f.offset, f.datatype);
+  };
+  const auto time = [](const std::uint8_t* pt, const pcl::PCLPointField& f) -> double {
+    if constexpr (kFloat32)
+      return load<float>(pt + f.offset);
+    else
+      return fieldAs<double>(pt + f.offset, f.datatype);
+  };
+  auto& points = cloud.points;
+  std::size_t n = points.size();
+  points.resize(n + static_cast<std::size_t>(blob.width) * blob.height);
+  for (std::size_t r = 0; r < blob.height; ++r) {
+    const std::uint8_t* row = blob.data.data() + r * blob.row_step;
+    if (fields.time)
+      times->startRow();
+    for (std::size_t c = 0; c < blob.width; ++c) {
+      const std::uint8_t* pt = row + c * blob.point_step;
+      const float x = value(pt, *fields.x);
+      const float y = value(pt, *fields.y);
+      const float z = value(pt, *fields.z);
+      if (!(std::isfinite(x) && std::isfinite(y) && std::isfinite(z))) {
+        ++num_dropped;
+        continue;
+      }
+      pcl::PointXYZI& p = points[n++];
+      p.x = x;
+      p.y = y;
+      p.z = z;
+      const float intensity = fields.intensity ? value(pt, *fields.intensity) : 0.0f;
+      p.intensity = std::isfinite(intensity) ? intensity : 0.0f;
+      if (fields.time)
+        times->add(time(pt, *fields.time));
+    }
+  }
+  points.resize(n);
+}
+
 /// Convert a PCD/PLY blob to x y z intensity, whatever the field types are; when
 /// \a times is not null and the blob has a time field, also gather the raw times of
 /// the kept points in the same pass.
@@ -324,60 +381,16 @@ blobToCloud(const std::string& path,
     times->values.reserve(num_points);
   }
 
-  // The common layout, every field read float32 (as the simulator, most drivers and
-  // KITTI conversions write them): no per-value type switch, and the points written in
-  // place. The same points, values and times as the general loop below.
+  // The common layout, every field float32 (as the simulator, most drivers and KITTI
+  // conversions write them), is read without a type switch per value.
   const auto isFloat32 = [](const pcl::PCLPointField* f) {
     return !f || f->datatype == pcl::PCLPointField::FLOAT32;
   };
-  if (isFloat32(fx) && isFloat32(fy) && isFloat32(fz) && isFloat32(fi) && isFloat32(ft)) {
-    auto& points = cloud.points;
-    std::size_t n = points.size();
-    points.resize(n + num_points);
-    for (std::size_t r = 0; r < blob.height; ++r) {
-      const std::uint8_t* row = blob.data.data() + r * blob.row_step;
-      if (ft)
-        times->startRow();
-      for (std::size_t c = 0; c < blob.width; ++c) {
-        const std::uint8_t* pt = row + c * blob.point_step;
-        const float x = load<float>(pt + fx->offset);
-        const float y = load<float>(pt + fy->offset);
-        const float z = load<float>(pt + fz->offset);
-        if (!(std::isfinite(x) && std::isfinite(y) && std::isfinite(z))) {
-          ++num_dropped;
-          continue;
-        }
-        pcl::PointXYZI& p = points[n++];
-        p.x = x;
-        p.y = y;
-        p.z = z;
-        const float intensity = fi ? load<float>(pt + fi->offset) : 0.0f;
-        p.intensity = std::isfinite(intensity) ? intensity : 0.0f;
-        if (ft)
-          times->add(load<float>(pt + ft->offset));
-      }
-    }
-    points.resize(n);
-    return;
-  }
-  cloud.reserve(num_points);
-  for (std::size_t r = 0; r < blob.height; ++r) {
-    const std::uint8_t* row = blob.data.data() + r * blob.row_step;
-    if (ft)
-      times->startRow();
-    for (std::size_t c = 0; c < blob.width; ++c) {
-      const std::uint8_t* pt = row + c * blob.point_step;
-      const float intensity = fi ? fieldAs<float>(pt + fi->offset, fi->datatype) : 0.0f;
-      const bool kept = pushIfFinite(cloud,
-                                     fieldAs<float>(pt + fx->offset, fx->datatype),
-                                     fieldAs<float>(pt + fy->offset, fy->datatype),
-                                     fieldAs<float>(pt + fz->offset, fz->datatype),
-                                     intensity,
-                                     num_dropped);
-      if (ft && kept)
-        times->add(fieldAs<double>(pt + ft->offset, ft->datatype));
-    }
-  }
+  const PointFields fields{fx, fy, fz, fi, ft};
+  if (isFloat32(fx) && isFloat32(fy) && isFloat32(fz) && isFloat32(fi) && isFloat32(ft))
+    convertPoints<true>(blob, fields, cloud, num_dropped, times);
+  else
+    convertPoints<false>(blob, fields, cloud, num_dropped, times);
 }
 
 /// The whole file in memory, read with one call.
