@@ -150,6 +150,7 @@ for kind in "${kinds[@]}"; do
       long=(RastSlam.DeterministicModeIsReproducible RastSlam.RevisitsDoNotGrowTheLoopDatabase
             RastSlam.LoopCorrectionGoesToTheYoungMapsEdges
             RastSlam.MapPointsAreBuiltOnlyForABundleAdjustment
+            RastSlam.FeaturesOnDemandSkipFramesButNotKeyFramesNorTheLoop
             Odometry.SimulatedDriveHasSmallDriftAndConsistentKeyFrames
             Odometry.YoungMapTakesEveryScanSoTheStartDoesNotTilt
             OdometryRealData.Vlp16WeakFeaturesTakeHeightAndTiltFromThePrior)
@@ -206,6 +207,7 @@ for kind in "${kinds[@]}"; do
     deterministic_only='ClosesTheLoopAndImprovesTheTrajectory|DeterministicModeIsReproducible'
     deterministic_only+='|MapPointsAreBuiltOnlyForABundleAdjustment|SpillingToDiskChangesNothingButMemory'
     deterministic_only+='|RevisitsDoNotGrowTheLoopDatabase|LoopCorrectionGoesToTheYoungMapsEdges'
+    deterministic_only+='|FeaturesOnDemandSkipFramesButNotKeyFramesNorTheLoop'
     # The tool's tests whose runs start its threads in ways the others do not: every
     # output of a threaded run, an error in the loop closing thread, a second drive
     # merged into a session. The others run the same threads again (the look-ahead's

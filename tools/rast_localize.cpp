@@ -220,9 +220,11 @@ run(int argc, char** argv)
   int prior_candidates = localizer_defaults.max_prior_candidates;
   // Like the inlier thresholds, the default is the session's sensor preset's.
   int place_neighbours = localizer_defaults.neighbourhood_keyframes;
-  args.addInt("place-neighbours",
-              "placement: map key-frames nearest a candidate verified with it (0: none)",
-              &place_neighbours);
+  args.addInt(
+      "place-neighbours",
+      "placement: map key-frames nearest a candidate verified with it, also in the "
+      "first attempts (0: none; default: the preset's, and 2 in the first 5 attempts)",
+      &place_neighbours);
 
   int dense_points = localizer_defaults.odometry.dense.max_source_points;
   args.addInt(
@@ -334,8 +336,10 @@ run(int argc, char** argv)
   if (args.given("place-min-inliers"))
     localizer_params.verification.min_inliers = place_min_inliers;
   localizer_params.max_prior_candidates = prior_candidates;
-  if (args.given("place-neighbours"))
+  if (args.given("place-neighbours")) {
     localizer_params.neighbourhood_keyframes = place_neighbours;
+    params.first_attempts_neighbourhood_keyframes = place_neighbours;
+  }
   localizer_params.odometry.dense.max_source_points = dense_points;
   std::string deskew_reason, deskew_timing;
   applyDeskewFlags(deskew, reader, static_cast<std::size_t>(stride),
@@ -532,6 +536,9 @@ run(int argc, char** argv)
       {"min_initial_inliers", localizer_params.verification.min_initial_inliers},
       {"min_inliers", localizer_params.verification.min_inliers},
       {"neighbourhood_keyframes", localizer_params.neighbourhood_keyframes},
+      {"first_attempts", params.first_attempts},
+      {"first_attempts_neighbourhood_keyframes",
+       params.first_attempts_neighbourhood_keyframes},
       {"track_on_map", params.track_on_map},
       {"backoff_after", params.placement_backoff_after},
       {"every", params.placement_every},

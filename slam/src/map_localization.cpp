@@ -117,6 +117,11 @@ MapLocalizationParams::isValid(std::string* why) const
     return fail("placement_backoff_after must be >= 0 and placement_every >= 1, got " +
                 std::to_string(placement_backoff_after) + " and " +
                 std::to_string(placement_every));
+  if (first_attempts < 0 || first_attempts_neighbourhood_keyframes < 0)
+    return fail("first_attempts and first_attempts_neighbourhood_keyframes must be >= 0, "
+                "got " +
+                std::to_string(first_attempts) + " and " +
+                std::to_string(first_attempts_neighbourhood_keyframes));
   if (background_placement_lag < 0 ||
       (tentative_window_frames > 0 && background_placement_lag > tentative_window_frames))
     return fail(
@@ -1416,6 +1421,9 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
   // doc/session.md, session 47).
   PlacementOptions options;
   options.neighbourhoods = !far;
+  // A start or a relocalization waits for its first attempts: more neighbours there.
+  if (m.failed_placements < m.params.first_attempts)
+    options.min_neighbourhood_keyframes = m.params.first_attempts_neighbourhood_keyframes;
   // Features the odometry did not make (features_on_demand) come from the scan itself.
   const bool no_features = !odo->features || odo->features->empty();
   if (!has_points || (no_features && !odo->features_skipped)) {

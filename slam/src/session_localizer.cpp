@@ -100,11 +100,12 @@ struct SessionLocalizer::Impl
     PointVector dense_target;
     std::vector<KeyFrameId> members; ///< the candidate and the neighbours that joined
   };
-  Neighbourhood neighbourhood(KeyFrameId id) const;
+  Neighbourhood neighbourhood(KeyFrameId id, int count) const;
   /// Verify \a query against key-frame \a id with its neighbourhood; \a members gets
   /// the key-frames it held.
   LoopVerification verifyNeighbourhood(const KeyFrame& query,
                                        KeyFrameId id,
+                                       int count,
                                        const Pose3d& guess,
                                        const GuessTolerance& tolerance,
                                        std::vector<KeyFrameId>& members) const;
@@ -262,7 +263,7 @@ SessionLocalizer::Impl::nearPrior(const PlacementPrior& prior) const
 }
 
 SessionLocalizer::Impl::Neighbourhood
-SessionLocalizer::Impl::neighbourhood(KeyFrameId id) const
+SessionLocalizer::Impl::neighbourhood(KeyFrameId id, int count) const
 {
   const KeyFrame& candidate = *session.keyframes.at(id);
   Neighbourhood out;
@@ -282,8 +283,7 @@ SessionLocalizer::Impl::neighbourhood(KeyFrameId id) const
     if (other != id && d <= params.neighbourhood_radius_m)
       near.emplace_back(d, other);
   }
-  const std::size_t n =
-      std::min(near.size(), static_cast<std::size_t>(params.neighbourhood_keyframes));
+  const std::size_t n = std::min(near.size(), static_cast<std::size_t>(count));
   std::partial_sort(
       near.begin(), near.begin() + static_cast<std::ptrdiff_t>(n), near.end());
   // A feature joins where no feature lies within 0.5 m of it in x-y yet (the raster is
@@ -347,11 +347,12 @@ SessionLocalizer::Impl::neighbourhood(KeyFrameId id) const
 LoopVerification
 SessionLocalizer::Impl::verifyNeighbourhood(const KeyFrame& query,
                                             KeyFrameId id,
+                                            int count,
                                             const Pose3d& guess,
                                             const GuessTolerance& tolerance,
                                             std::vector<KeyFrameId>& members) const
 {
-  Neighbourhood around = neighbourhood(id);
+  Neighbourhood around = neighbourhood(id, count);
   members = std::move(around.members);
   return detector->verify(query, around.keyframe, guess, tolerance, around.dense_target);
 }
@@ -442,6 +443,8 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
   };
   std::vector<Verified> verified;
   bool with_neighbours = false;
+  const int neighbours =
+      std::max(params.neighbourhood_keyframes, options.min_neighbourhood_keyframes);
   std::vector<KeyFrameId> covered; ///< the key-frames of the neighbourhoods verified
   const auto verify = [&](KeyFrameId id,
                           const Pose3d& guess,
@@ -452,7 +455,7 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
     std::vector<KeyFrameId> members;
     const LoopVerification v =
         with_neighbours
-            ? verifyNeighbourhood(query, id, guess, tolerance, members)
+            ? verifyNeighbourhood(query, id, neighbours, guess, tolerance, members)
             : index.verify(query, *session.keyframes.at(id), guess, tolerance);
     covered.insert(covered.end(), members.begin(), members.end());
     if (!v.accepted) {
@@ -515,7 +518,7 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
   // None placed the scan alone: the same candidates again with the key-frames around
   // them. Only after every one failed alone, so that a candidate that places the scan
   // on its own (the first pass's thresholds, set for one key-frame) is never preempted.
-  if (options.neighbourhoods && params.neighbourhood_keyframes > 0 && !verified.empty()) {
+  if (options.neighbourhoods && neighbours > 0 && !verified.empty()) {
     with_neighbours = true;
     for (const Verified& c : verified) {
       // Candidates side by side share most of their neighbourhood: each key-frame is

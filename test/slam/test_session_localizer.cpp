@@ -1145,6 +1145,54 @@ TEST(MapLocalization, SkippedScansAreCarriedByTheLastMotion)
 /// A VLP-16 scan pairs few corners with any one key-frame of the map. Verified with the
 /// key-frames around a candidate as well, where each one alone fails, more scans are
 /// placed, none wrong, and another world still places nothing.
+TEST(MapLocalization, TheFirstAttemptsVerifyNeighbourhoods)
+{
+  // A localizer set to verify no neighbourhoods (the HDL-64 preset's setting): cold
+  // starts on sparse scans, whose first attempts verify two neighbours by default
+  // (MapLocalizationParams::first_attempts), and without them.
+  const MappedLoop m = mapLoop(true, 150, SensorModel::kVlp16, SensorPreset::kVlp16);
+  SessionLocalizerParams none;
+  applySensorPreset(SensorPreset::kVlp16, none);
+  none.neighbourhood_keyframes = 0;
+  const SessionLocalizer localizer(loadSession(m.dir.string()), none);
+  MapLocalizationParams with_first, without;
+  without.first_attempts = 0;
+  int placed[2] = {0, 0}, by_neighbours = 0;
+  std::mt19937 rng(11);
+  for (std::size_t i = 160; i < 200; i += 2) {
+    const auto full = simulateFrame(*m.sim, i);
+    auto scan = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    for (const pcl::PointXYZI& q : full->points)
+      if (rng() % 100 < 20)
+        scan->push_back(q);
+    for (const bool first : {false, true}) {
+      MapLocalization localization(localizer, m.odometry, first ? with_first : without);
+      const LocalizationFrame f = localization.addScan(scan, m.sim->timestamp(i), 0);
+      EXPECT_TRUE(f.placement_tried) << "frame " << i;
+      if (!f.placed)
+        continue;
+      ++placed[first];
+      EXPECT_LT((f.T_world_lidar.translation() - m.truth(i).translation()).norm(), 0.5)
+          << "frame " << i << ": " << f.message;
+      if (f.message.find("with its neighbours") != std::string::npos) {
+        EXPECT_TRUE(first) << "frame " << i << ": " << f.message;
+        ++by_neighbours;
+      }
+    }
+  }
+  std::printf("cold starts on 20 sparse scans: %d placed without neighbourhoods, %d with "
+              "them in the first attempts (%d by them)\n",
+              placed[0],
+              placed[1],
+              by_neighbours);
+  EXPECT_GT(by_neighbours, 0);
+  EXPECT_EQ(placed[1], placed[0] + by_neighbours);
+
+  MapLocalizationParams bad;
+  bad.first_attempts = -1;
+  EXPECT_THROW(MapLocalization(localizer, m.odometry, bad), std::invalid_argument);
+}
+
 TEST(SessionLocalizer, ACandidatesNeighboursPlaceSparseScansThatItAloneCannot)
 {
   const MappedLoop m = mapLoop(false, 150, SensorModel::kVlp16, SensorPreset::kVlp16);
@@ -1170,6 +1218,18 @@ TEST(SessionLocalizer, ACandidatesNeighboursPlaceSparseScansThatItAloneCannot)
     for (const pcl::PointXYZI& q : full->points)
       if (rng() % 100 < 20)
         scan->push_back(q);
+    // At least two neighbours asked by the caller, on a localizer set to none, are
+    // the same as the localizer's two.
+    PlacementOptions at_least_two;
+    at_least_two.min_neighbourhood_keyframes = 2;
+    const Placement asked = alone->place(scan, nullptr, at_least_two);
+    const Placement set = together->place(scan);
+    EXPECT_EQ(asked.success, set.success) << "frame " << i;
+    EXPECT_EQ(asked.neighbourhoods_verified, set.neighbourhoods_verified)
+        << "frame " << i;
+    if (asked.success && set.success) {
+      EXPECT_TRUE(asked.T_world_lidar.isApprox(set.T_world_lidar, 1e-9)) << "frame " << i;
+    }
     for (const bool with : {false, true}) {
       const Placement p = (with ? *together : *alone).place(scan);
       if (!p.success)

@@ -110,6 +110,10 @@ struct PlacementOptions
   /// long where a placement is unlikely turns it off (MapLocalization does far from
   /// the map).
   bool neighbourhoods = true;
+  /// ... with at least this many nearest key-frames each, more than
+  /// SessionLocalizerParams::neighbourhood_keyframes when that is less (MapLocalization
+  /// asks for them where a start or a relocalization waits for the placement).
+  int min_neighbourhood_keyframes = 0;
 };
 
 /// \brief Where a scan was placed on the map, or why it was not.
@@ -302,6 +306,18 @@ struct MapLocalizationParams
   /// until then. 0: every frame tries.
   int placement_backoff_after = 20;
   int placement_every = 4; ///< frames between two attempts while backed off (>= 1)
+  /// The first first_attempts attempts of the run and after each frame the map
+  /// confirmed (a cold start; a relocalization after a jump) verify a candidate that
+  /// fails alone again with at least first_attempts_neighbourhood_keyframes of its
+  /// nearest key-frames (PlacementOptions::min_neighbourhood_keyframes), whatever
+  /// SessionLocalizerParams::neighbourhood_keyframes says; later attempts keep that
+  /// setting. A start or a relocalization waits for these attempts, and 5 attempts are
+  /// the 5 frames a relocalization has. Simulated KITTI 00 second drive (seed 101): the
+  /// kidnapped run is right again after 1 frame instead of 5; with every attempt
+  /// before the back-off, the frame rate fell 3-4 % (doc/session.md, "Session 49").
+  /// 0 neighbours or attempts: that setting throughout.
+  int first_attempts = 5;
+  int first_attempts_neighbourhood_keyframes = 2;
   /// While backed off, an attempt runs on a thread of its own and is taken this many
   /// frames later (0: at once, on the caller's thread). Off the map an attempt costs
   /// 20-35 ms and the odometry tracks a frame in about 13 ms (simulated HDL-64): most
