@@ -94,6 +94,8 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_EQ(summary["placement"]["min_inliers"].get<int>(), 40); // the hdl64 preset's
   EXPECT_EQ(summary["placement"]["min_initial_inliers"].get<int>(), 12);
   EXPECT_EQ(summary["placement"]["neighbourhood_keyframes"].get<int>(), 0);
+  EXPECT_EQ(summary["placement"]["first_attempts"].get<int>(), 5);
+  EXPECT_EQ(summary["placement"]["first_attempts_neighbourhood_keyframes"].get<int>(), 2);
   EXPECT_TRUE(summary["placement"]["track_on_map"].get<bool>());
   EXPECT_TRUE(summary["lookahead"]["on"].get<bool>());
   EXPECT_TRUE(summary["odometry_features"]["on_demand"].get<bool>());
@@ -140,6 +142,8 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_EQ(summary2["placement"]["min_initial_inliers"].get<int>(), 11);
   EXPECT_EQ(summary2["placement"]["min_inliers"].get<int>(), 38);
   EXPECT_EQ(summary2["placement"]["neighbourhood_keyframes"].get<int>(), 3);
+  EXPECT_EQ(summary2["placement"]["first_attempts_neighbourhood_keyframes"].get<int>(), 3)
+      << "-place-neighbours sets the first attempts' too";
 
   // Without the odometry's look-ahead, and with every scan's features: the same poses
   // (MapLocalization's own test compares them off the map, where the odometry runs on
