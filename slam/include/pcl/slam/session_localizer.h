@@ -313,8 +313,9 @@ struct MapLocalizationParams
   /// SessionLocalizerParams::neighbourhood_keyframes says; later attempts keep that
   /// setting. A start or a relocalization waits for these attempts, and 5 attempts are
   /// the 5 frames a relocalization has. Simulated KITTI 00 second drive (seed 101): the
-  /// kidnapped run is right again after 1 frame instead of 5; with every attempt
-  /// before the back-off, the frame rate fell 3-4 % (doc/session.md, "Session 49").
+  /// kidnapped run is right again after 1 frame instead of 5, at a frame rate within
+  /// the runs' noise; every attempt before the back-off ran 3-4 % slower in the two
+  /// rounds measured (doc/session.md, "Session 49").
   /// 0 neighbours or attempts: that setting throughout.
   int first_attempts = 5;
   int first_attempts_neighbourhood_keyframes = 2;
