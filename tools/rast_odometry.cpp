@@ -134,6 +134,11 @@ run(int argc, char** argv)
       "the way to them where the scan does not constrain the motion (0: the "
       "prior alone; the vlp16 preset 0.25; doc/odometry.md)",
       &params.weak_feature_share);
+  args.addInt("failed-features-skip",
+              "scans wanting no features (-features-every): for this many scans after "
+              "features failed, a dense step the scan constrains only weakly is taken, "
+              "kept near the prior there (0: off; doc/odometry.md)",
+              &params.failed_features_skip_frames);
   int features_every = 1;
   args.addInt("features-every",
               "want the raster features of every N-th scan only; the dense step alone "
@@ -180,6 +185,8 @@ run(int argc, char** argv)
       p.visibility_margin_m = cli_params.visibility_margin_m;
     if (args.given("weak-feature-share"))
       p.weak_feature_share = cli_params.weak_feature_share;
+    if (args.given("failed-features-skip"))
+      p.failed_features_skip_frames = cli_params.failed_features_skip_frames;
     p.registration.refine = !no_refine;
     if (no_loose_rematch)
       p.loose_rematch = false;
@@ -366,9 +373,11 @@ run(int argc, char** argv)
                        {"frames_by_time_source", tally.frames_by_time_source},
                        {"second_passes", tally.second_passes},
                        {"time_field_warnings", tally.time_field_warnings}};
-  summary["params"] = {{"visibility_margin_m", params.visibility_margin_m},
-                       {"weak_feature_share", params.weak_feature_share},
-                       {"lookahead", !no_lookahead}};
+  summary["params"] = {
+      {"visibility_margin_m", params.visibility_margin_m},
+      {"weak_feature_share", params.weak_feature_share},
+      {"failed_features_skip_frames", params.failed_features_skip_frames},
+      {"lookahead", !no_lookahead}};
   summary.update(degraded.toJson());
   summary["max_rotation_error"] = rast::maxRotationError(poses);
   summary["error"] = run_error ? nlohmann::json(error_message) : nlohmann::json(nullptr);

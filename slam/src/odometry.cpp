@@ -184,6 +184,9 @@ OdometryParams::isValid(std::string* why) const
   else if (!(weak_feature_share >= 0.0 && weak_feature_share <= 1.0))
     reason =
         "weak_feature_share must be in [0, 1], got " + std::to_string(weak_feature_share);
+  else if (failed_features_skip_frames < 0)
+    reason = "failed_features_skip_frames must be >= 0, got " +
+             std::to_string(failed_features_skip_frames);
   else if (!(prior_gate_accel_mps2 >= 0.0 && std::isfinite(prior_gate_accel_mps2)) ||
            !(prior_gate_angular_accel_dps2 >= 0.0 &&
              std::isfinite(prior_gate_angular_accel_dps2)))

@@ -256,6 +256,10 @@ struct Odometry::Impl
   /// The last frame's pose came from the prior's fit over strong features
   /// (check_strong_features); the next frame's features are not checked again.
   bool prior_overruled_features = false;
+  /// Frames tracked without features since a frame whose features failed the
+  /// consistency check (OdometryParams::failed_features_skip_frames); -1: the last
+  /// frame that made them passed it, or none did yet.
+  int frames_since_failed_features = -1;
 
   Pose3d predict(double timestamp_s) const;
   /// Seconds since the last frame (timestamps scaled by deskew.seconds_per_timestamp).

@@ -83,9 +83,13 @@ Odometry::Impl::track(Frame& frame, OdometryFrameResult result)
     result.timings.refine_ms += watch.getTime();
   }
   FeatureTrack feature_track;
-  if (!dense_only) {
+  if (dense_only) {
+    if (frames_since_failed_features >= 0)
+      ++frames_since_failed_features;
+  } else {
     ensureFeatures(frame, result);
     feature_track = trackFeatures(frame, result); // 4
+    frames_since_failed_features = feature_track.ok ? -1 : 0;
     // 4b. What moved out of the map's voxels, as this scan sees it from the prior, does
     //     not pair this frame (moving objects; dropMovedIn drops what moved in).
     frame.check_visibility = useVisibility(frame);
@@ -451,9 +455,16 @@ Odometry::Impl::trackDenseOnly(const Frame& frame, OdometryFrameResult& result) 
       frame.source, localMap(), frame.T_world_prior, params.dense, priorAnchored(frame));
   const double paired_ratio = static_cast<double>(dense.num_correspondences) /
                               std::max(1, dense.num_source_points);
-  if (!dense.success || dense.degenerate_directions > 0 ||
+  // Soon after features failed here, a direction the scan leaves weak keeps the prior,
+  // as the failed features' hypothesis search would keep it
+  // (failed_features_skip_frames).
+  const bool weak =
+      dense.degenerate_directions > 0 || dense.weakest_ratio < kDenseOnlyMinWeakestRatio;
+  const bool features_failed_lately =
+      frames_since_failed_features >= 0 &&
+      frames_since_failed_features < params.failed_features_skip_frames;
+  if (!dense.success || (weak && !features_failed_lately) ||
       dense.iterations >= params.dense.max_iterations ||
-      dense.weakest_ratio < kDenseOnlyMinWeakestRatio ||
       paired_ratio < kMinFallbackPairedRatio ||
       !withinGate(frame, dense.T_world_lidar, gate))
     return false;
@@ -466,6 +477,12 @@ Odometry::Impl::trackDenseOnly(const Frame& frame, OdometryFrameResult& result) 
   keepDenseStats(dense, result);
   result.message =
       "dense from the prior, no features made (none wanted); " + dense.message;
+  if (weak) {
+    result.degraded = true;
+    const int ago = frames_since_failed_features + 1;
+    result.message += "; weakly constrained, kept near the prior: the features failed " +
+                      std::to_string(ago) + (ago == 1 ? " frame" : " frames") + " before";
+  }
   return true;
 }
 

@@ -59,6 +59,22 @@ pathSimulator(pcl::rast::PathType type,
   return std::make_unique<pcl::rast::LidarSimulator>(params, pcl::rast::generatePath(path));
 }
 
+/// \brief Raw sweeps of a flawed HDL-64 (sensor imperfections) in realistic traffic on
+/// rough ground, two ray-casting threads; the world and noise from \a seed.
+inline pcl::rast::LidarSimulatorParams
+streetParams(std::uint64_t seed)
+{
+  pcl::rast::LidarSimulatorParams params;
+  params.seed = seed;
+  params.num_threads = 2;
+  params.raw_sweep = true;
+  params.imperfections = true;
+  params.world.moving_cars = true;
+  params.world.traffic.mode = pcl::rast::TrafficMode::kRealistic;
+  params.world.rough_ground = true;
+  return params;
+}
+
 /// \brief Every scan of a simulator in memory, with its point times and ground truth.
 struct SimulatedScans
 {

@@ -169,6 +169,83 @@ TEST(OdometryFeaturesOnDemand, TheLookAheadChangesNoPose)
   }
 }
 
+TEST(OdometryFeaturesOnDemand, AfterFeaturesFailedAWeakDenseStepKeepsThePrior)
+{
+  // A suburb, then a tunnel, then a highway (mixed scenes of seed 4, as in
+  // OdometryTraffic.ATunnelAtSpeedKeepsTheVehiclesVelocity), raw sweeps at 26 m/s with
+  // the sensor's flaws and realistic traffic. In the tunnel the scan hardly holds the
+  // road's axis, and the features fail on most frames (lamps and doors alike). Such
+  // frames made their features and failed again; now the frames just after a failure
+  // take the dense step from the prior instead. Either way the axis keeps the prior
+  // where the scan cannot tell, so the poses stay about as good.
+  PathParams path;
+  path.type = PathType::kStraight;
+  path.num_frames = 170;
+  path.speed_mps = 26.0;
+  LidarSimulatorParams params = pcl_rast_test::streetParams(4);
+  params.world.mixed_scenes = true;
+  params.world.scene_min_length_m = 100.0;
+  params.world.scene_max_length_m = 280.0;
+  const Drive d =
+      pcl_rast_test::simulateScans(LidarSimulator(params, generatePath(path)));
+
+  struct Counts
+  {
+    TrackRun run;
+    int failed = 0; ///< frames whose features failed the consistency check
+    int weak = 0;   ///< frames taken from a weak dense step after such a failure
+  };
+  auto run = [&](int skip_frames) {
+    OdometryParams p;
+    p.failed_features_skip_frames = skip_frames;
+    Odometry odometry(p);
+    Counts c;
+    int since_failed = -1; // frames without features since features failed
+    for (std::size_t i = 0; i < d.clouds.size(); ++i) {
+      odometry.setFeaturesWanted(false);
+      OdometryFrameResult f =
+          odometry.processFrame(d.clouds[i], d.stamps[i], i, d.times[i]);
+      const auto says = [&](const char* what) {
+        return f.message.find(what) != std::string::npos;
+      };
+      if (says("the features failed")) {
+        ++c.weak;
+        EXPECT_TRUE(f.features_skipped || f.keyframe) << "frame " << i;
+        EXPECT_TRUE(f.degraded) << "frame " << i;
+        EXPECT_GE(since_failed, 0) << "frame " << i << ": no failure before it";
+        EXPECT_LT(since_failed, skip_frames) << "frame " << i << ": " << f.message;
+      }
+      if (says("dense from the prior, no features made")) {
+        since_failed = since_failed >= 0 ? since_failed + 1 : -1;
+      } else if (i > 0) { // the feature path
+        const bool failed = says("feature-consistency check failed");
+        c.failed += failed ? 1 : 0;
+        since_failed = failed ? 0 : -1;
+      }
+      c.run.skipped += f.features_skipped ? 1 : 0;
+      c.run.poses.push_back(f.T_world_lidar);
+      c.run.frames.push_back(std::move(f));
+    }
+    return c;
+  };
+  const Counts before = run(0);
+  const Counts now = run(3);
+  const double ate_before = evaluateTrajectory(before.run.poses, d.gt).ate_rmse_m;
+  const double ate_now = evaluateTrajectory(now.run.poses, d.gt).ate_rmse_m;
+  std::cout << "[ simulated tunnel at 26 m/s, raw sweeps ] features failed on "
+            << before.failed << " frames, " << before.run.skipped << " of "
+            << d.clouds.size() << " frames without features, ATE " << ate_before
+            << " m; 3 frames from the prior after a failure: failed on " << now.failed
+            << ", " << now.run.skipped << " without (" << now.weak
+            << " weakly constrained), ATE " << ate_now << " m\n";
+  EXPECT_EQ(before.weak, 0) << "off: no weak dense step is taken";
+  ASSERT_GE(before.failed, 10) << "the field should make the features fail";
+  EXPECT_GE(now.weak, 10);
+  EXPECT_GE(now.run.skipped, before.run.skipped + 10);
+  EXPECT_LT(now.failed, before.failed);
+  EXPECT_LT(ate_now, ate_before + 0.05);
+}
+
 } // namespace
 
 } // namespace test_odometry_on_demand

@@ -198,6 +198,11 @@ TEST_F(OdometryTool, TheLookAheadChangesNoPose)
   EXPECT_EQ(features(none_with)["every"].get<int>(), 0);
   EXPECT_EQ(features(none_with)["frames_without"].get<int>(),
             features(none_without)["frames_without"].get<int>());
+  // The weak dense steps after failed features: on by default, recorded.
+  EXPECT_EQ(nlohmann::json::parse(readAll(
+                none_with / "summary.json"))["params"]["failed_features_skip_frames"]
+                .get<int>(),
+            3);
 }
 
 TEST_F(OdometryTool, AnErrorMidRunStillWritesTheFramesBeforeItAndExitsThree)
@@ -271,6 +276,12 @@ TEST_F(OdometryTool, BadArgumentsExitOneBeforeAnyWork)
                         log_),
             1);
   EXPECT_NE(readAll(log_).find("weak_feature_share must be in [0, 1], got 1.5"),
+            std::string::npos)
+      << readAll(log_);
+  EXPECT_EQ(runOdometry(
+                "-input . -output '" + out.string() + "' -failed-features-skip -2", log_),
+            1);
+  EXPECT_NE(readAll(log_).find("failed_features_skip_frames must be >= 0, got -2"),
             std::string::npos)
       << readAll(log_);
   EXPECT_EQ(

@@ -6,6 +6,7 @@
 /// VLP-16 accelerating on a highway must follow its speed. And KITTI 08's simulated climb
 /// must keep its height.
 
+#include "simulated_drive.h"
 #include "test_data.h"
 
 #include <algorithm>
@@ -29,20 +30,7 @@ namespace {
 
 using namespace pcl::rast;
 
-/// Raw sweeps of a flawed HDL-64 in realistic traffic on rough ground.
-LidarSimulatorParams
-streetParams(std::uint64_t seed)
-{
-  LidarSimulatorParams params;
-  params.seed = seed;
-  params.num_threads = 2;
-  params.raw_sweep = true;
-  params.imperfections = true;
-  params.world.moving_cars = true;
-  params.world.traffic.mode = TrafficMode::kRealistic;
-  params.world.rough_ground = true;
-  return params;
-}
+using pcl_rast_test::streetParams;
 
 /// The largest error of a frame-to-frame motion [m].
 double

@@ -368,6 +368,16 @@ struct OdometryParams
   /// HDL-64's weak features in a tunnel (lamps, doors) pull it astray instead
   /// (doc/odometry.md). In [0, 1].
   double weak_feature_share = 0.0;
+  /// Without features wanted (Odometry::setFeaturesWanted): for this many frames after
+  /// a frame whose features failed the consistency check (fewer than
+  /// min_feature_inliers), a dense step from the prior is taken even where the scan
+  /// constrains a direction weakly or not at all; that direction keeps the prior, as
+  /// the failed features' hypothesis search keeps it where it cannot tell the
+  /// hypotheses apart. Every other condition of a frame tracked without features
+  /// stands. In open fields such a frame made features that failed, then searched
+  /// dense ICP from 15 motion hypotheses: 20 ms of an HDL-64's frame, where the dense
+  /// step alone takes 2.4 (doc/odometry.md, "Features on demand"). 0: off.
+  int failed_features_skip_frames = 3;
   /// Two dense results the scan cannot tell apart: their RMS point-to-plane residuals
   /// differ by less than this [m] (about half the range noise). Where weak features
   /// and the prior end this close, the prior wins; where dense ICP slid this
