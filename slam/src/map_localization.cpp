@@ -328,12 +328,14 @@ struct MapLocalization::Impl
   /// Whether this frame's placement will likely use the odometry's features of the
   /// scan (MapLocalizationParams::features_on_demand): when one is due by the previous
   /// frame's schedule, near the map or far from it (this frame's is known only after the
-  /// odometry ran). An attempt due when the odometry made none describes the scan
+  /// odometry ran), and the map did not confirm the previous frame (this one is then
+  /// likely aligned). An attempt due when the odometry made none describes the scan
   /// itself: so does the rare one that agrees at once with a tentative placement that a
   /// background attempt, taken this frame, left.
   bool featuresWanted() const
   {
-    return !params.features_on_demand || placementDue(far_before);
+    return !params.features_on_demand ||
+           (!previous_confirmed && placementDue(far_before));
   }
 
   /// Distance [m] from \a predicted to the nearest session key-frame of the map when

@@ -231,23 +231,35 @@ TEST(SessionLocalizer, ASessionLoadedWithoutCloudsPlacesTheSameScans)
 
 /// A second pass localized scan after scan (cold start, then tracking on the map), with
 /// the odometry resting while the map confirms the frames and with it tracking every
-/// frame; and a kidnapping: 100 frames dropped from the input are reported as a jump
-/// and the pose is right again within 5 frames.
+/// frame, on demand (features only where a placement may use them: not after a frame
+/// the map confirmed) or with every frame's features; and a kidnapping: 100 frames
+/// dropped from the input are reported as a jump and the pose is right again within 5
+/// frames.
 TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
 {
   const MappedLoop m = mapLoop();
-  std::vector<Pose3d> poses[2];
-  for (const bool track_on_map : {true, false}) {
+  std::vector<std::vector<Pose3d>> poses;
+  for (const auto& [track_on_map, on_demand] :
+       {std::pair{true, true}, std::pair{false, true}, std::pair{false, false}}) {
     MapLocalizationParams params;
     params.track_on_map = track_on_map;
+    params.features_on_demand = on_demand;
     MapLocalization localization(*m.localizer, m.odometry, params);
-    int localized = 0, odometry_frames = 0;
+    int localized = 0, odometry_frames = 0, skipped = 0;
     double sum_sq = 0.0, max_error_m = 0.0;
+    poses.emplace_back();
+    bool previous_localized = false;
     for (std::size_t i = 160; i < 200; ++i) {
       const LocalizationFrame f = localization.addScan(simulateFrame(*m.sim, i),
                                                        m.sim->timestamp(i), i);
-      poses[track_on_map ? 0 : 1].push_back(f.T_world_lidar);
+      poses.back().push_back(f.T_world_lidar);
       odometry_frames += f.odometry_ran ? 1 : 0;
+      skipped += f.odometry_features_skipped ? 1 : 0;
+      // Only after a frame the map confirmed: a placement is unlikely then.
+      if (f.odometry_features_skipped) {
+        EXPECT_TRUE(previous_localized) << "frame " << i << ": " << f.message;
+      }
+      previous_localized = f.status == LocalizationStatus::kLocalized;
       const double error_m = (f.T_world_lidar.translation() - m.truth(i).translation()).norm();
       if (f.status == LocalizationStatus::kLocalized) {
         ++localized;
@@ -261,20 +273,34 @@ TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
         EXPECT_FALSE(f.jump) << "frame " << i << ": " << f.message;
     }
     const double rmse = std::sqrt(sum_sq / std::max(1, localized));
-    std::printf("simulated second pass, 40 frames, track_on_map %d: %d localized, the "
-                "odometry on %d, map-frame RMSE %.3f m, largest %.3f m\n",
-                track_on_map ? 1 : 0, localized, odometry_frames, rmse, max_error_m);
+    std::printf(
+        "simulated second pass, 40 frames, track_on_map %d, features on demand %d: "
+        "%d localized, the odometry on %d (%d without features), map-frame RMSE "
+        "%.3f m, largest %.3f m\n",
+        track_on_map ? 1 : 0,
+        on_demand ? 1 : 0,
+        localized,
+        odometry_frames,
+        skipped,
+        rmse,
+        max_error_m);
     EXPECT_GE(localized, 38);
     EXPECT_LT(rmse, 0.10);
     if (track_on_map)
       EXPECT_LE(odometry_frames, 4) << "the map tracks once two frames are confirmed";
     else
       EXPECT_EQ(odometry_frames, 40);
+    if (!track_on_map && on_demand)
+      EXPECT_GE(skipped, 25) << "the frames after a confirmed one need no features"; // 29
+    if (!on_demand)
+      EXPECT_EQ(skipped, 0);
   }
-  // Predicting by the map's velocity instead of the odometry lands on the same poses.
-  for (std::size_t j = 0; j < poses[0].size(); ++j)
-    EXPECT_LT((poses[0][j].translation() - poses[1][j].translation()).norm(), 0.05)
-        << "frame " << 160 + j;
+  // Predicting by the map's velocity instead of the odometry, or with the features of
+  // every frame, lands on the same poses.
+  for (std::size_t k = 1; k < poses.size(); ++k)
+    for (std::size_t j = 0; j < poses[0].size(); ++j)
+      EXPECT_LT((poses[0][j].translation() - poses[k][j].translation()).norm(), 0.05)
+          << "run " << k << ", frame " << 160 + j;
   {
     // Frames 20-39, then 140-149: the input jumps 100 m ahead.
     MapLocalization localization(*m.localizer, m.odometry);

@@ -393,11 +393,15 @@ struct MapLocalizationParams
   /// cached: the frames after the placement come out as without backtracking. A thinned
   /// copy of each such scan is kept meanwhile (at most 32768 points, 256 kB). 0: none.
   int backtrack_frames = 20;
-  /// Backed off, the odometry makes a scan's raster features only when a placement may
-  /// need them this frame (Odometry::setFeaturesWanted): between the back-off's
-  /// attempts a frame its dense step tracks alone from the prior skips them. The poses
-  /// of those frames come from the dense step as before; only the features' cross-checks
-  /// are left out there. false: every frame has its features.
+  /// The odometry makes a scan's raster features only when a placement may need them
+  /// this frame (Odometry::setFeaturesWanted): not between the back-off's attempts,
+  /// and not after a frame the map confirmed (where the odometry runs on the map,
+  /// track_on_map false: a placement then is rare, and makes the scan's features
+  /// itself). There a frame its dense step tracks alone from the prior skips them. The
+  /// poses of those frames come from the dense step as before; only the features'
+  /// cross-checks are left out there. Simulated VLP-16 on the 00 world: 5-9 % more
+  /// frames a second (doc/session.md, "Session 50"). false: every frame has its
+  /// features.
   bool features_on_demand = true;
   /// \brief Whether all values are usable; on failure \a why (if not null) says which.
   bool isValid(std::string* why = nullptr) const;
