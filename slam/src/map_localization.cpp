@@ -1135,16 +1135,20 @@ struct MapLocalization::Impl
     f.message = why;
   }
 
+  /// \a not_aligned: why the map did not confirm the prediction, if there was one.
   void takePlacement(LocalizationFrame& f,
                      const Placement& placement,
                      const std::optional<Pose3d>& predicted,
-                     double dt)
+                     double dt,
+                     const std::string& not_aligned)
   {
     f.status = LocalizationStatus::kLocalized;
     f.placed = true;
     f.T_world_lidar = placement.T_world_lidar;
     f.keyframe = placement.keyframe;
     f.message = placement.message;
+    if (predicted && !not_aligned.empty())
+      f.message += "; the prediction was not confirmed (" + not_aligned + ")";
     if (predicted) {
       f.jump_m =
           (placement.T_world_lidar.translation() - predicted->translation()).norm();
@@ -1380,7 +1384,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
             T_world_found, job.T_odom_lidar, m.odometry_run, job.frame, !p.success};
       m.failed_placements = p.success ? 0 : m.failed_placements + 1;
       if (p.success) {
-        m.takePlacement(f, p, predicted, dt);
+        m.takePlacement(f, p, predicted, dt, why);
         f.time_ms = watch.getTime();
         return f;
       }
@@ -1400,7 +1404,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
     confirmed.message = how;
     m.failed_placements = 0;
     m.recent_placement.reset();
-    m.takePlacement(f, confirmed, predicted, dt);
+    m.takePlacement(f, confirmed, predicted, dt, why);
     m.recent_rmse.push_back(a->rmse_m);
     f.correspondences = a->correspondences;
     f.rmse_m = a->rmse_m;
@@ -1493,7 +1497,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
   if (f.placement_tried && !started_in_background) // that one counts when it is taken
     m.failed_placements = placement.success ? 0 : m.failed_placements + 1;
   if (placement.success)
-    m.takePlacement(f, placement, predicted, dt);
+    m.takePlacement(f, placement, predicted, dt, why);
   else if (predicted)
     m.carryOn(f,
               *predicted,

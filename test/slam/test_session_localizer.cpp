@@ -316,6 +316,12 @@ TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
         continue;
       }
       jump_reported = jump_reported || f.jump;
+      // A placement says why the map did not confirm the stale prediction.
+      if (f.placed) {
+        EXPECT_NE(f.message.find("; the prediction was not confirmed ("),
+                  std::string::npos)
+            << "frame " << i << ": " << f.message;
+      }
       // Never localized at the stale place the odometry carries on from.
       if (f.status == LocalizationStatus::kLocalized) {
         EXPECT_LT(error_m, 2.0) << "frame " << i << " localized off: " << f.message;
