@@ -1147,9 +1147,9 @@ struct MapLocalization::Impl
     f.T_world_lidar = placement.T_world_lidar;
     f.keyframe = placement.keyframe;
     f.message = placement.message;
-    if (predicted && !not_aligned.empty())
-      f.message += "; the prediction was not confirmed (" + not_aligned + ")";
     if (predicted) {
+      if (!not_aligned.empty())
+        f.message += "; the prediction was not confirmed (" + not_aligned + ")";
       f.jump_m =
           (placement.T_world_lidar.translation() - predicted->translation()).norm();
       f.jump = f.jump_m > params.jump_m;
