@@ -256,6 +256,12 @@ run(int argc, char** argv)
       "compute each scan's ground, raster and ORB on the main thread after the "
       "scan before, not on a second thread while it is tracked",
       &no_lookahead);
+  bool trust_degraded_odometry = false;
+  args.addSwitch("trust-degraded-odometry",
+                 "an alignment that keeps a direction the scan does not constrain at the "
+                 "odometry's prediction (the vlp16 preset) confirms the frame also where "
+                 "the odometry was degraded",
+                 &trust_degraded_odometry);
   bool all_features = false;
   args.addSwitch("all-features",
                  "make every scan's raster features, also between the placement attempts "
@@ -269,6 +275,7 @@ run(int argc, char** argv)
   installStopSignals();
   params.confirm_tentative_by_alignment = !no_tentative_alignment;
   params.features_on_demand = !all_features;
+  params.degenerate_needs_tracked_odometry = !trust_degraded_odometry;
   if (no_merged_keyframes)
     params.merged_keyframes_within_m = 0.0;
 
@@ -554,7 +561,8 @@ run(int argc, char** argv)
   summary["map_alignment"] = {
       {"merged_keyframes_within_m", params.merged_keyframes_within_m},
       {"target_voxel_m", params.alignment.target_voxel_size_m}, // the sensor preset's
-      {"degeneracy_min_ratio", params.alignment.degeneracy_min_ratio}};
+      {"degeneracy_min_ratio", params.alignment.degeneracy_min_ratio},
+      {"degenerate_needs_tracked_odometry", params.degenerate_needs_tracked_odometry}};
   summary["odometry_features"] = {{"on_demand", params.features_on_demand},
                                   {"frames_without", features_skipped}};
   summary["lookahead"] = {{"on", !no_lookahead},

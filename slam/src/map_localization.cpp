@@ -1327,6 +1327,14 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
         " frames since the map last confirmed the pose: only a placement localizes again";
   } else if (predicted && has_points) {
     std::optional<Impl::Alignment> a = m.alignToMap(alignment_source, *predicted, why);
+    if (a && a->degenerate_directions > 0 && odo && odo->degraded &&
+        m.params.degenerate_needs_tracked_odometry) {
+      why = a->target + ": " + std::to_string(a->degenerate_directions) +
+            " direction(s) the scan does not constrain and the odometry's step there was "
+            "degraded (" +
+            toString(odo->status) + ")";
+      a.reset();
+    }
     if (a) {
       if (std::string worse = m.suddenlyWorse(a->rmse_m); !worse.empty()) {
         why = a->target + ": " + worse;

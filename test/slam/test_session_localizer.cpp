@@ -339,6 +339,60 @@ TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
   }
 }
 
+/// An alignment that keeps a direction at the prediction confirms a frame only where the
+/// odometry that predicted it tracked that frame. Every alignment here keeps at least
+/// one direction (degeneracy_min_ratio 0.5); an odometry that makes every frame's
+/// features and never passes them (a threshold beyond any scan) tracks every frame by
+/// its dense fallback, degraded. Then no frame is localized by such an alignment, and
+/// the frames say why (a placement, a measurement of its own, still localizes them);
+/// with the odometry tracking, or with the rule off, the map's alignments confirm them.
+TEST(MapLocalization, AKeptDirectionConfirmsAFrameOnlyWhereTheOdometryTrackedIt)
+{
+  const MappedLoop m = mapLoop();
+  OdometryParams failing = m.odometry;
+  failing.min_feature_inliers = 100000;
+  failing.strong_feature_inliers = 100000;
+  struct Run
+  {
+    const char* name;
+    const OdometryParams* odometry;
+    bool rule;
+    int kept = 0, refused = 0;
+  };
+  Run runs[] = {{"tracking odometry", &m.odometry, true},
+                {"odometry falling back", &failing, true},
+                {"odometry falling back, rule off", &failing, false}};
+  for (Run& run : runs) {
+    MapLocalizationParams params;
+    params.track_on_map = false;       // the odometry predicts every frame
+    params.features_on_demand = false; // ... with its features
+    params.alignment.degeneracy_min_ratio = 0.5;
+    params.degenerate_needs_tracked_odometry = run.rule;
+    MapLocalization localization(*m.localizer, *run.odometry, params);
+    for (std::size_t i = 160; i < 200; ++i) {
+      const LocalizationFrame f =
+          localization.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
+      if (f.status == LocalizationStatus::kLocalized &&
+          f.message.find("kept at the prediction") != std::string::npos)
+        ++run.kept;
+      if (f.message.find("direction(s) the scan does not constrain and the odometry's "
+                         "step there was degraded (dense_fallback)") != std::string::npos)
+        ++run.refused;
+    }
+    std::printf("simulated second pass, 40 frames, every alignment keeping a direction, "
+                "%s: %d localized by such alignments, %d refused\n",
+                run.name,
+                run.kept,
+                run.refused);
+  }
+  EXPECT_GE(runs[0].kept, 35);
+  EXPECT_EQ(runs[0].refused, 0);
+  EXPECT_EQ(runs[1].kept, 0);
+  EXPECT_GE(runs[1].refused, 10);
+  EXPECT_GE(runs[2].kept, 35);
+  EXPECT_EQ(runs[2].refused, 0);
+}
+
 /// Raw sweeps with their point times (10 m/s, so half a sweep is 0.5 m) on a map of
 /// instantaneous scans: each scan's source for the map alignment is prepared from its
 /// raw points and then moved by the frame's motion; with a look-ahead scan it is
