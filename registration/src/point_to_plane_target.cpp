@@ -5,6 +5,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <future>
 #include <pcl/registration/point_to_plane_refinement.h>
@@ -88,13 +89,87 @@ voxelStats(const PointVector& points,
   }
 }
 
+/// floor(c / 2), also for negative c.
+int
+floorHalf(int c)
+{
+  return c >= 0 ? c / 2 : -((1 - c) / 2);
+}
+
+/// The voxels grouped by blocks of 2x2x2, for the 5x5x5 neighbourhoods: one spans 27
+/// blocks, a hash look-up each, where the voxels one by one took 125. A VLP-16 scan in
+/// 1 m voxels needs them for 59 % of its voxels (a simulated 06 world).
+class VoxelBlocks
+{
+public:
+  explicit VoxelBlocks(const std::vector<VoxelStats>& voxels)
+  {
+    block_of_key_.reset(voxels.size() / 2 + 16);
+    children_.reserve(voxels.size() / 2 + 16);
+    for (std::size_t v = 0; v < voxels.size(); ++v) {
+      const Eigen::Array3i& c = voxels[v].cell;
+      const auto [b, inserted] = block_of_key_.insert(
+          packVoxelKey(floorHalf(c.x()), floorHalf(c.y()), floorHalf(c.z())),
+          static_cast<int>(children_.size()));
+      if (inserted)
+        children_.emplace_back().fill(-1);
+      children_[b][(c.x() & 1) | ((c.y() & 1) << 1) | ((c.z() & 1) << 2)] =
+          static_cast<int>(v);
+    }
+  }
+
+  /// The voxel of each offset (dx, dy, dz) from \a cell within the 5x5x5 cube, or -1,
+  /// at ((dx + 2) * 5 + dy + 2) * 5 + dz + 2: x slowest, as a look-up per offset goes.
+  void cube5(const Eigen::Array3i& cell, std::array<int, 125>& voxel_at) const
+  {
+    voxel_at.fill(-1);
+    // Per axis: the first block, and for each of the 3 blocks the child offsets
+    // (0 or 1) within the cube.
+    int first[3], bit_lo[3][3], bit_hi[3][3];
+    for (int a = 0; a < 3; ++a) {
+      first[a] = floorHalf(cell[a] - 2);
+      for (int i = 0; i < 3; ++i) {
+        const int c0 = 2 * (first[a] + i); // the block's first cell
+        bit_lo[a][i] = std::max(0, cell[a] - 2 - c0);
+        bit_hi[a][i] = std::min(1, cell[a] + 2 - c0);
+      }
+    }
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j)
+        for (int l = 0; l < 3; ++l) {
+          const int b =
+              block_of_key_.find(packVoxelKey(first[0] + i, first[1] + j, first[2] + l));
+          if (b < 0)
+            continue;
+          const std::array<int, 8>& child = children_[b];
+          for (int x = bit_lo[0][i]; x <= bit_hi[0][i]; ++x)
+            for (int y = bit_lo[1][j]; y <= bit_hi[1][j]; ++y)
+              for (int z = bit_lo[2][l]; z <= bit_hi[2][l]; ++z) {
+                const int v = child[x | (y << 1) | (z << 2)];
+                if (v < 0)
+                  continue;
+                const int dx = 2 * (first[0] + i) + x - cell.x() + 2;
+                const int dy = 2 * (first[1] + j) + y - cell.y() + 2;
+                const int dz = 2 * (first[2] + l) + z - cell.z() + 2;
+                voxel_at[(dx * 5 + dy) * 5 + dz] = v;
+              }
+        }
+  }
+
+private:
+  VoxelHashMap block_of_key_;
+  std::vector<std::array<int, 8>> children_;
+};
+
 /// The plane of \a voxel, fitted to the raw points of its 3x3x3 voxel block (5x5x5
-/// where that holds fewer than normal_neighbours): false where that neighbourhood is
-/// not planar (PointToPlaneParams::max_surface_variation) or is one scan ring.
+/// where that holds fewer than normal_neighbours, found by \a blocks): false where that
+/// neighbourhood is not planar (PointToPlaneParams::max_surface_variation) or is one
+/// scan ring. The voxels are summed in the order of their offsets either way.
 bool
 planeNormal(const VoxelStats& voxel,
             const std::vector<VoxelStats>& voxels,
             const VoxelHashMap& voxel_of_cell,
+            const VoxelBlocks& blocks,
             const PointToPlaneParams& params,
             Eigen::Vector3d& normal)
 {
@@ -102,21 +177,28 @@ planeNormal(const VoxelStats& voxel,
   int count = 0;
   Eigen::Vector3d sum = Eigen::Vector3d::Zero();
   Eigen::Matrix3d sum_outer = Eigen::Matrix3d::Zero();
-  for (int radius = 1; radius <= 2 && count < k; ++radius) {
+  const auto add = [&](int j) {
+    count += voxels[j].count;
+    sum += voxels[j].sum;
+    sum_outer += voxels[j].sum_outer;
+  };
+  for (int dx = -1; dx <= 1; ++dx)
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dz = -1; dz <= 1; ++dz) {
+        const int j = voxel_of_cell.find(
+            packVoxelKey(voxel.cell.x() + dx, voxel.cell.y() + dy, voxel.cell.z() + dz));
+        if (j >= 0)
+          add(j);
+      }
+  if (count < k) {
     count = 0;
     sum.setZero();
     sum_outer.setZero();
-    for (int dx = -radius; dx <= radius; ++dx)
-      for (int dy = -radius; dy <= radius; ++dy)
-        for (int dz = -radius; dz <= radius; ++dz) {
-          const int j = voxel_of_cell.find(packVoxelKey(
-              voxel.cell.x() + dx, voxel.cell.y() + dy, voxel.cell.z() + dz));
-          if (j < 0)
-            continue;
-          count += voxels[j].count;
-          sum += voxels[j].sum;
-          sum_outer += voxels[j].sum_outer;
-        }
+    std::array<int, 125> voxel_at;
+    blocks.cube5(voxel.cell, voxel_at);
+    for (const int j : voxel_at)
+      if (j >= 0)
+        add(j);
   }
   if (count < k)
     return false;
@@ -277,6 +359,7 @@ PointToPlaneTarget::build(const PointVector& points,
   const std::size_t split = parallel_fit ? fitted / 2 : fitted;
   PointVector planar_points, planar_normals, second_points, second_normals;
   std::vector<float> planar_times, second_times;
+  const VoxelBlocks blocks(voxels);
   const auto fit = [&](std::size_t first,
                        std::size_t last,
                        PointVector& out_points,
@@ -287,7 +370,7 @@ PointToPlaneTarget::build(const PointVector& points,
     for (std::size_t j = first; j < last; ++j) {
       Eigen::Vector3d normal;
       const VoxelStats& voxel = voxels[j * stride];
-      if (planeNormal(voxel, voxels, voxel_of_cell, params, normal)) {
+      if (planeNormal(voxel, voxels, voxel_of_cell, blocks, params, normal)) {
         out_points.push_back(voxel.sum / voxel.count);
         out_normals.push_back(normal);
         if (times_in)

@@ -8,10 +8,12 @@
 #include <fstream>
 #include <gtest/gtest.h>
 #include <limits>
+#include <map>
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
 #include <pcl/registration/point_to_plane_refinement.h>
 #include <random>
+#include <tuple>
 
 // This file's names stay its own: a test program compiles several test files as
 // one translation unit (test/CMakeLists.txt).
@@ -383,6 +385,53 @@ TEST(PointToPlaneRefinement, TwoThreadsPrepareTheSameTarget)
   two.threads = 3;
   EXPECT_FALSE(two.isValid(&why));
   EXPECT_NE(why.find("threads must be 1 or 2, got 3"), std::string::npos) << why;
+}
+
+/// A sparse plane (about one point per 1 m voxel, as a VLP-16 ring far out): a voxel's
+/// 3x3x3 block holds fewer than normal_neighbours points, so its plane is fitted to the
+/// 5x5x5 block, which the build finds through blocks of 2x2x2 voxels. Over negative and
+/// positive coordinates every voxel whose block (counted here point by point) holds
+/// enough points has its plane, with the plane's normal.
+TEST(PointToPlaneRefinement, SparseVoxelsFitTheirPlanesOnTheWiderBlock)
+{
+  const Eigen::Vector3d n = Eigen::Vector3d(-0.2, -0.1, 1.0).normalized();
+  PointVector points;
+  for (double x = -12.3; x < 12.0; x += 1.05)
+    for (double y = -11.9; y < 12.0; y += 1.05)
+      points.emplace_back(x, y, 0.2 * x + 0.1 * y - 3.7);
+  PointToPlaneParams params;
+  params.target_voxel_size_m = 1.0;
+  const auto cell = [](const Eigen::Vector3d& p) {
+    return Eigen::Array3i(static_cast<int>(std::floor(p.x())),
+                          static_cast<int>(std::floor(p.y())),
+                          static_cast<int>(std::floor(p.z())));
+  };
+  // The voxels, and how many points each one's 3x3x3 and 5x5x5 blocks hold.
+  std::map<std::tuple<int, int, int>, int> voxels;
+  for (const auto& p : points) {
+    const Eigen::Array3i c = cell(p);
+    ++voxels[{c.x(), c.y(), c.z()}];
+  }
+  int expected = 0, wider = 0;
+  for (const auto& [key, own] : voxels) {
+    int block[3] = {0, 0, 0};
+    for (const auto& [other, count] : voxels) {
+      const int d = std::max({std::abs(std::get<0>(other) - std::get<0>(key)),
+                              std::abs(std::get<1>(other) - std::get<1>(key)),
+                              std::abs(std::get<2>(other) - std::get<2>(key))});
+      if (d <= 2)
+        block[d <= 1 ? 1 : 2] += count;
+    }
+    const bool narrow = block[1] >= params.normal_neighbours;
+    expected += narrow || block[1] + block[2] >= params.normal_neighbours;
+    wider += !narrow && block[1] + block[2] >= params.normal_neighbours;
+  }
+  ASSERT_GT(wider, 300) << "most voxels need the wider block";
+  PointToPlaneTarget target;
+  target.build(points, params);
+  EXPECT_EQ(static_cast<int>(target.size()), expected);
+  for (std::size_t i = 0; i < target.size(); ++i)
+    EXPECT_GT(std::abs(target.normals()[i].dot(n)), 1.0 - 1e-9) << "plane " << i;
 }
 
 /// nearest() with a kept CellLookup finds what a fresh search finds, whether the query
