@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <future>
 #include <pcl/registration/point_to_plane_refinement.h>
 #include <pcl/registration/voxel_hash_map.h>
@@ -105,16 +106,17 @@ public:
   explicit VoxelBlocks(const std::vector<VoxelStats>& voxels)
   {
     block_of_key_.reset(voxels.size() / 2 + 16);
-    children_.reserve(voxels.size() / 2 + 16);
+    blocks_.reserve(voxels.size() / 2 + 16);
     for (std::size_t v = 0; v < voxels.size(); ++v) {
       const Eigen::Array3i& c = voxels[v].cell;
       const auto [b, inserted] = block_of_key_.insert(
           packVoxelKey(floorHalf(c.x()), floorHalf(c.y()), floorHalf(c.z())),
-          static_cast<int>(children_.size()));
+          static_cast<int>(blocks_.size()));
       if (inserted)
-        children_.emplace_back().fill(-1);
-      children_[b][(c.x() & 1) | ((c.y() & 1) << 1) | ((c.z() & 1) << 2)] =
-          static_cast<int>(v);
+        blocks_.emplace_back();
+      const int child = (c.x() & 1) | ((c.y() & 1) << 1) | ((c.z() & 1) << 2);
+      blocks_[b].voxel[child] = static_cast<int>(v);
+      blocks_[b].occupied |= static_cast<std::uint8_t>(1u << child);
     }
   }
 
@@ -123,15 +125,19 @@ public:
   void cube5(const Eigen::Array3i& cell, std::array<int, 125>& voxel_at) const
   {
     voxel_at.fill(-1);
-    // Per axis: the first block, and for each of the 3 blocks the child offsets
-    // (0 or 1) within the cube.
-    int first[3], bit_lo[3][3], bit_hi[3][3];
+    // The children with offset 0 or 1 along each axis (child = x | y << 1 | z << 2).
+    static constexpr std::uint8_t kAxisChildren[3][2] = {
+        {0x55, 0xAA}, {0x33, 0xCC}, {0x0F, 0xF0}};
+    // Per axis: the first of the 3 blocks, and for each the children within the cube.
+    int first[3];
+    std::uint8_t within[3][3];
     for (int a = 0; a < 3; ++a) {
       first[a] = floorHalf(cell[a] - 2);
       for (int i = 0; i < 3; ++i) {
-        const int c0 = 2 * (first[a] + i); // the block's first cell
-        bit_lo[a][i] = std::max(0, cell[a] - 2 - c0);
-        bit_hi[a][i] = std::min(1, cell[a] + 2 - c0);
+        const int c0 = 2 * (first[a] + i); // the block's first cell along the axis
+        within[a][i] =
+            static_cast<std::uint8_t>((c0 >= cell[a] - 2 ? kAxisChildren[a][0] : 0) |
+                                      (c0 + 1 <= cell[a] + 2 ? kAxisChildren[a][1] : 0));
       }
     }
     for (int i = 0; i < 3; ++i)
@@ -141,24 +147,27 @@ public:
               block_of_key_.find(packVoxelKey(first[0] + i, first[1] + j, first[2] + l));
           if (b < 0)
             continue;
-          const std::array<int, 8>& child = children_[b];
-          for (int x = bit_lo[0][i]; x <= bit_hi[0][i]; ++x)
-            for (int y = bit_lo[1][j]; y <= bit_hi[1][j]; ++y)
-              for (int z = bit_lo[2][l]; z <= bit_hi[2][l]; ++z) {
-                const int v = child[x | (y << 1) | (z << 2)];
-                if (v < 0)
-                  continue;
-                const int dx = 2 * (first[0] + i) + x - cell.x() + 2;
-                const int dy = 2 * (first[1] + j) + y - cell.y() + 2;
-                const int dz = 2 * (first[2] + l) + z - cell.z() + 2;
-                voxel_at[(dx * 5 + dy) * 5 + dz] = v;
-              }
+          const Block& block = blocks_[b];
+          unsigned m = block.occupied & within[0][i] & within[1][j] & within[2][l];
+          while (m != 0) {
+            const int child = __builtin_ctz(m);
+            m &= m - 1;
+            const int dx = 2 * (first[0] + i) + (child & 1) - cell.x() + 2;
+            const int dy = 2 * (first[1] + j) + ((child >> 1) & 1) - cell.y() + 2;
+            const int dz = 2 * (first[2] + l) + (child >> 2) - cell.z() + 2;
+            voxel_at[(dx * 5 + dy) * 5 + dz] = block.voxel[child];
+          }
         }
   }
 
 private:
+  struct Block
+  {
+    std::array<int, 8> voxel; ///< by child; valid where occupied has its bit
+    std::uint8_t occupied = 0;
+  };
   VoxelHashMap block_of_key_;
-  std::vector<std::array<int, 8>> children_;
+  std::vector<Block> blocks_;
 };
 
 /// The plane of \a voxel, fitted to the raw points of its 3x3x3 voxel block (5x5x5
