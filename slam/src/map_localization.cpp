@@ -1327,7 +1327,13 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
         " frames since the map last confirmed the pose: only a placement localizes again";
   } else if (predicted && has_points) {
     std::optional<Impl::Alignment> a = m.alignToMap(alignment_source, *predicted, why);
-    if (a && a->degenerate_directions > 0 && odo && odo->degraded &&
+    // Strong features measure every direction even where the frame is flagged for
+    // its dense step's (OdometryFrameResult::message "(from the features)").
+    const bool odometry_measured =
+        odo && (!odo->degraded ||
+                (odo->status == TrackingStatus::kFeatures &&
+                 odo->num_inliers >= m.odometry_params.strong_feature_inliers));
+    if (a && a->degenerate_directions > 0 && odo && !odometry_measured &&
         m.params.degenerate_needs_tracked_odometry) {
       why = a->target + ": " + std::to_string(a->degenerate_directions) +
             " direction(s) the scan does not constrain and the odometry's step there was "

@@ -299,9 +299,10 @@ struct MapLocalizationParams
   bool track_on_map = true;
   /// An alignment that keeps directions the scan does not constrain at the prediction
   /// (alignment.degeneracy_min_ratio > 0) confirms a frame only when the odometry that
-  /// predicted them tracked that frame (OdometryFrameResult::degraded false): a degraded
-  /// step (features failed, a dense fallback, constant velocity) is no measurement of
-  /// those directions. A simulated VLP-16 crossing a field (KITTI 00 world, tuning seed
+  /// predicted them tracked that frame (OdometryFrameResult::degraded false, or strong
+  /// features, OdometryParams::strong_feature_inliers): a degraded step (features
+  /// failed, a dense fallback, constant velocity) is no measurement of those
+  /// directions. A simulated VLP-16 crossing a field (KITTI 00 world, tuning seed
   /// 44) was otherwise "localized" on 60 frames while its odometry drifted 5 m
   /// sideways; on the streets of the other worlds 0-2 frames change (doc/session.md,
   /// "Session 51"). A frame the map tracks (track_on_map) ran no odometry: there the
