@@ -68,44 +68,32 @@ skipWithoutData(benchmark::State& state, const Pair& p)
   return false;
 }
 
-/// PointToPlaneTarget::build() (on \a threads, PointToPlaneParams::threads).
+/// PointToPlaneTarget::build() (on \a threads, PointToPlaneParams::threads). \a sparse:
+/// as the VLP-16 preset's map alignment has it (1 m voxels), on every fourth point of
+/// the scan: most voxels' planes are then fitted to their 5x5x5 block (found through
+/// blocks of 2x2x2 voxels; session 51).
 void
-BM_PrepareTarget(benchmark::State& state, const std::string& name, int threads)
+BM_PrepareTarget(benchmark::State& state,
+                 const std::string& name,
+                 int threads,
+                 bool sparse)
 {
   const Pair& p = pair(name);
   if (skipWithoutData(state, p))
     return;
+  Cloud cloud;
+  for (std::size_t i = 0; i < p.target.size(); i += sparse ? 4 : 1)
+    cloud.push_back(p.target[i]);
   PointToPlaneParams params;
   params.threads = threads;
+  if (sparse)
+    params.target_voxel_size_m = 1.0;
   for (auto _ : state) {
     PointToPlaneTarget target;
-    target.build(p.target, params);
+    target.build(cloud, params);
     benchmark::DoNotOptimize(target.size());
   }
-  state.counters["points"] = static_cast<double>(p.target.size());
-}
-
-/// PointToPlaneTarget::build() as the VLP-16 preset's map alignment has it (1 m voxels),
-/// on every fourth point of the KITTI scan: most voxels' planes are then fitted to their
-/// 5x5x5 block (2x2x2 blocks of voxels find it; session 51).
-void
-BM_PrepareSparseTarget(benchmark::State& state, int threads)
-{
-  const Pair& p = pair("kitti");
-  if (skipWithoutData(state, p))
-    return;
-  Cloud sparse;
-  for (std::size_t i = 0; i < p.target.size(); i += 4)
-    sparse.push_back(p.target[i]);
-  PointToPlaneParams params;
-  params.target_voxel_size_m = 1.0;
-  params.threads = threads;
-  for (auto _ : state) {
-    PointToPlaneTarget target;
-    target.build(sparse, params);
-    benchmark::DoNotOptimize(target.size());
-  }
-  state.counters["points"] = static_cast<double>(sparse.size());
+  state.counters["points"] = static_cast<double>(cloud.size());
 }
 
 /// prepareSource() (on \a threads, PointToPlaneParams::threads).
@@ -161,15 +149,18 @@ BM_PrepareSourceAndRefine(benchmark::State& state, const std::string& name)
   }
 }
 
-BENCHMARK_CAPTURE(BM_PrepareTarget, scan_pair, std::string("scan_pair"), 1)
+BENCHMARK_CAPTURE(BM_PrepareTarget, scan_pair, std::string("scan_pair"), 1, false)
     ->Unit(benchmark::kMillisecond);
-BENCHMARK_CAPTURE(BM_PrepareTarget, kitti_raw_22, std::string("kitti"), 1)
+BENCHMARK_CAPTURE(BM_PrepareTarget, kitti_raw_22, std::string("kitti"), 1, false)
     ->Unit(benchmark::kMillisecond);
-BENCHMARK_CAPTURE(BM_PrepareTarget, kitti_raw_22_two_threads, std::string("kitti"), 2)
+BENCHMARK_CAPTURE(
+    BM_PrepareTarget, kitti_raw_22_two_threads, std::string("kitti"), 2, false)
     ->Unit(benchmark::kMillisecond);
-BENCHMARK_CAPTURE(BM_PrepareSparseTarget, kitti_raw_22_quarter_1m, 1)
+BENCHMARK_CAPTURE(
+    BM_PrepareTarget, kitti_raw_22_quarter_1m, std::string("kitti"), 1, true)
     ->Unit(benchmark::kMillisecond);
-BENCHMARK_CAPTURE(BM_PrepareSparseTarget, kitti_raw_22_quarter_1m_two_threads, 2)
+BENCHMARK_CAPTURE(
+    BM_PrepareTarget, kitti_raw_22_quarter_1m_two_threads, std::string("kitti"), 2, true)
     ->Unit(benchmark::kMillisecond);
 BENCHMARK_CAPTURE(BM_PrepareSource, scan_pair, std::string("scan_pair"), 1)
     ->Unit(benchmark::kMillisecond);

@@ -883,6 +883,24 @@ struct MapLocalization::Impl
     a.reset();
   }
 
+  /// The same where the prediction is the odometry's step \a odo and that step measured
+  /// nothing (degenerate_needs_tracked_odometry): degraded, unless strong features set
+  /// the pose (a features frame is also flagged for its dense step's degeneracy).
+  void refuseWhereOdometryDegraded(std::optional<Alignment>& a,
+                                   const OdometryFrameResult& odo,
+                                   std::string& why) const
+  {
+    const bool measured =
+        !odo.degraded || (odo.status == TrackingStatus::kFeatures &&
+                          odo.num_inliers >= odometry_params.strong_feature_inliers);
+    if (!a || a->degenerate_directions == 0 ||
+        !params.degenerate_needs_tracked_odometry || measured)
+      return;
+    refuseUnconstrained(a, why);
+    why += std::string(" and the odometry's step there was degraded (") +
+           toString(odo.status) + ")";
+  }
+
   /// The refinement \a r of the scan to a target whose frame is \a T_world_target
   /// (\a target names it, \a keyframe is the key-frame reported), when it confirms the
   /// pose (success, RMS at most max_rmse_m); else none, and \a why_not says why.
@@ -1327,20 +1345,8 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
         " frames since the map last confirmed the pose: only a placement localizes again";
   } else if (predicted && has_points) {
     std::optional<Impl::Alignment> a = m.alignToMap(alignment_source, *predicted, why);
-    // Strong features measure every direction even where the frame is flagged for
-    // its dense step's (OdometryFrameResult::message "(from the features)").
-    const bool odometry_measured =
-        odo && (!odo->degraded ||
-                (odo->status == TrackingStatus::kFeatures &&
-                 odo->num_inliers >= m.odometry_params.strong_feature_inliers));
-    if (a && a->degenerate_directions > 0 && odo && !odometry_measured &&
-        m.params.degenerate_needs_tracked_odometry) {
-      why = a->target + ": " + std::to_string(a->degenerate_directions) +
-            " direction(s) the scan does not constrain and the odometry's step there was "
-            "degraded (" +
-            toString(odo->status) + ")";
-      a.reset();
-    }
+    if (odo)
+      m.refuseWhereOdometryDegraded(a, *odo, why);
     if (a) {
       if (std::string worse = m.suddenlyWorse(a->rmse_m); !worse.empty()) {
         why = a->target + ": " + worse;
