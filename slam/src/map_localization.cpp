@@ -257,6 +257,18 @@ struct MapLocalization::Impl
   std::optional<double> last_timestamp_s; ///< of the last scan
   Pose3d T_odom_previous = Pose3d::Identity();
   bool have_odom_previous = false;
+  /// The scan a jump was found on: the odometry restarted for the next frame tracks it
+  /// first, so that the next frame's step is measured (not the identity of a first
+  /// frame, which a direction the map alignment keeps at the prediction would hold).
+  struct JumpScan
+  {
+    pcl::PointCloud<pcl::PointXYZI>::ConstPtr scan;
+    double timestamp_s = 0.0;
+    std::size_t frame_index = 0;
+    std::vector<float> point_times_s;
+    std::size_t frame = 0; ///< its frame count
+  };
+  std::optional<JumpScan> jump_scan;
   int tracking_only = 0;
   /// The motion per second between the last two frames, when the map confirmed both.
   std::optional<Twist> map_velocity;
@@ -1044,6 +1056,16 @@ struct MapLocalization::Impl
     have_odom_previous = false;
     odometry_stale = false;
     ++odometry_run;
+    // Right after a jump: from the scan the jump was found on, whose pose the map gave.
+    if (jump_scan && jump_scan->frame + 1 == frames) {
+      const OdometryFrameResult first = odometry->processFrame(jump_scan->scan,
+                                                               jump_scan->timestamp_s,
+                                                               jump_scan->frame_index,
+                                                               jump_scan->point_times_s);
+      T_odom_previous = first.T_world_lidar;
+      have_odom_previous = true;
+    }
+    jump_scan.reset();
   }
 
   /// The odometry's motion since the previous frame (identity for the first).
@@ -1251,6 +1273,10 @@ MapLocalization::Impl::add(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& raw_
   FrameMotion motion;
   LocalizationFrame f =
       localize(raw_scan, timestamp_s, frame_index, point_times_s, next, motion);
+  if (f.jump && raw_scan && !raw_scan->empty())
+    jump_scan = JumpScan{raw_scan, timestamp_s, frame_index, point_times_s, frames};
+  else
+    jump_scan.reset();
   if (params.backtrack_frames == 0)
     return f;
   const pcl::StopWatch watch;
