@@ -20,9 +20,13 @@ revisits the first drive's roads. Then:
 "On mapped roads": within 5 m of a first-drive position (ground truth); "off the map":
 farther than 20 m from every one.
 
+With --stride S the second drive is every S-th scan (a vehicle S times as fast at the
+same scan rate; the kidnapping cuts the same 200 frames of the drive, 200 / S scans, so
+that it lands as far away; a cold start takes 3 scans), and there is no merge.
+
   scripts/eval_sessions.py [-b BUILD] [-o OUT] [-q SEQ] [-m MAP_LAST] [-r SEED]
                            [-n COLD_STARTS] [-l LAST] [--keep] [--no-merge]
-                           [--sim-args ARGS] [--localize-args ARGS]
+                           [--stride S] [--sim-args ARGS] [--localize-args ARGS]
 """
 import argparse
 import csv
@@ -171,17 +175,19 @@ def localized_online(row):
     return row["status"] == "localized" and row.get("backtracked", "0") != "1"
 
 
-def kidnap(a, out, sim, session, gt, n, second_first, on_map, tool, loc, localized, truth):
-    if len(on_map) <= 400:
+def kidnap(a, out, sim, session, gt, second, on_map, tool, loc, localized, truth):
+    if len(on_map) <= 400 // a.stride:
         print("\nkidnapping: not measured: %d frames on mapped roads" % len(on_map))
         return
 
-    cut = on_map[len(on_map) // 2] - 100
+    span = 200  # frames of the drive (every a.stride-th of them is in the input)
+    cut = on_map[len(on_map) // 2] - span // 2
+    index = {i: k for k, i in enumerate(second)}
     kid = os.path.join(out, "kidnap_input")
     shutil.rmtree(kid, ignore_errors=True)
     os.makedirs(os.path.join(kid, "pcd"))
     times = open(os.path.join(sim, "times.txt")).read().split()
-    kept = [i for i in range(second_first, n) if not cut <= i < cut + 200]
+    kept = [i for i in second if not cut <= i < cut + span]
     with open(os.path.join(kid, "times.txt"), "w") as f:
         for j, i in enumerate(kept):
             os.symlink(os.path.join(sim, "pcd", "%06d.pcd" % i),
@@ -192,7 +198,7 @@ def kidnap(a, out, sim, session, gt, n, second_first, on_map, tool, loc, localiz
     ks = json.load(open(os.path.join(out, "kidnap", "summary.json")))
     kp = read_kitti(os.path.join(out, "kidnap", "poses_kitti.txt"))
     krows = statuses(os.path.join(out, "kidnap", "status.csv"))
-    gap = kept.index(cut + 200)
+    gap = next(j for j, i in enumerate(kept) if i >= cut + span)
     recovered = None
     # Right again: where the uncut run put the same scan (within 0.5 m) when that run
     # localized it, else within 2 m of ground truth (the map's own drift is larger than
@@ -201,7 +207,7 @@ def kidnap(a, out, sim, session, gt, n, second_first, on_map, tool, loc, localiz
         if not localized_online(krows[j]):
             continue
         i = kept[j]
-        if (i in localized and dist(position(kp[j]), position(loc[i - second_first])) < 0.5) or \
+        if (i in localized and dist(position(kp[j]), position(loc[index[i]])) < 0.5) or \
                 (i not in localized and dist(position(kp[j]), position(gt[i])) < 2.0):
             recovered = j - gap
             break
@@ -219,7 +225,7 @@ def kidnap(a, out, sim, session, gt, n, second_first, on_map, tool, loc, localiz
     jumps = [jp["frame"] for jp in ks["jumps"]]
     print("\nkidnapping (frames %d-%d cut): jump reported at input frames %s (the cut is "
           "before input frame %d); right again (within 0.5 m of the uncut run) %s"
-          % (cut, cut + 199, jumps, gap,
+          % (cut, cut + span - 1, jumps, gap,
              "after %d frames" % recovered if recovered is not None else "NOT within 50 frames"))
     print("  frames localized more than 2 m off after the cut: %d%s"
           % (len(false), " (input frames %s)" % false[:10] if false else ""))
@@ -238,6 +244,8 @@ def main():
     ap.add_argument("--keep", action="store_true", help="keep the simulated scans")
     ap.add_argument("--no-merge", action="store_true",
                     help="skip the multi-session merge (the longest step)")
+    ap.add_argument("--stride", type=int, default=1,
+                    help="the second drive at every S-th scan (S times as fast; no merge)")
     ap.add_argument("--sim-args", default="",
                     help="extra arguments of pcl_rast_simulate, e.g. '-elevation-bias 0' "
                          "(a diagnostic: the realistic world is the default)")
@@ -248,6 +256,10 @@ def main():
                     help="extra arguments of every pcl_rast_slam run (the map, the second "
                          "drive alone and the merge), e.g. '-features-on-demand'")
     a = ap.parse_args()
+    if a.stride < 1:
+        sys.exit("--stride must be >= 1, got %d" % a.stride)
+    if a.stride > 1:
+        a.no_merge = True
     tools = os.path.join(a.build, "tools")
     out = os.path.join(a.out, a.seq)
     os.makedirs(out, exist_ok=True)
@@ -259,6 +271,9 @@ def main():
           "rest; %s" % (a.seq, a.map_last, settings), flush=True)
     if a.sim_args:
         print("pcl_rast_simulate with %s" % a.sim_args, flush=True)
+    if a.stride > 1:
+        print("second drive at every %d-th scan (%d times as fast)" % (a.stride, a.stride),
+              flush=True)
     if a.localize_args:
         print("pcl_rast_localize with %s" % a.localize_args, flush=True)
     if a.slam_args:
@@ -277,6 +292,9 @@ def main():
     gt = read_kitti(os.path.join(sim, "poses.txt"))
     n, m = len(gt), a.map_last
     second_first = m + 1
+    second = list(range(second_first, n, a.stride))  # the second drive's scans
+    index = {i: k for k, i in enumerate(second)}      # their rows in its outputs
+    strided = ["-stride", str(a.stride)] if a.stride > 1 else []
     common = ["-quiet", "-software-render"]
 
     def tool(name, args, log):
@@ -293,10 +311,10 @@ def main():
                                   os.path.join(out, "map"), "-save-session", session]),
         ("localize", "pcl_rast_localize", ["-session", session, "-input", sim, "-first",
                                            str(second_first), "-output",
-                                           os.path.join(out, "localize")]),
+                                           os.path.join(out, "localize")] + strided),
         ("alone", "pcl_rast_slam", ["-input", sim, "-first", str(second_first), "-output",
                                     os.path.join(out, "alone"), "-save-session",
-                                    os.path.join(out, "alone_session")]),
+                                    os.path.join(out, "alone_session")] + strided),
         ("merge", "pcl_rast_slam", ["-input", sim, "-first", str(second_first), "-output",
                                     os.path.join(out, "merge"), "-session", session,
                                     "-save-session", os.path.join(out, "merged_session")]),
@@ -310,16 +328,16 @@ def main():
     mapped = Spatial([position(p) for p in gt[:m + 1]])
     near = [mapped.nearest(position(gt[i])) for i in range(n)]
     truth = MapTruth(gt, read_kitti(os.path.join(out, "map", "poses_kitti.txt")), mapped)
-    on_map = [i for i in range(second_first, n) if near[i] <= 5.0]
-    off_map = [i for i in range(second_first, n) if near[i] > 20.0]
+    on_map = [i for i in second if near[i] <= 5.0]
+    off_map = [i for i in second if near[i] > 20.0]
 
     # ---- second pass ----
     loc = read_kitti(os.path.join(out, "localize", "poses_kitti.txt"))
     rows = statuses(os.path.join(out, "localize", "status.csv"))
-    err = {i: dist(position(loc[i - second_first]), position(gt[i])) for i in range(second_first, n)}
-    localized = {i for i in range(second_first, n) if rows[i - second_first]["status"] == "localized"}
+    err = {i: dist(position(loc[index[i]]), position(gt[i])) for i in second}
+    localized = {i for i in second if rows[index[i]]["status"] == "localized"}
     on_loc = [i for i in on_map if i in localized]
-    on_online = [i for i in on_loc if localized_online(rows[i - second_first])]
+    on_online = [i for i in on_loc if localized_online(rows[index[i]])]
     ate_map = math.sqrt(sum(err[i] ** 2 for i in on_loc) / max(1, len(on_loc)))
     wrong = [i for i in localized if err[i] > 2.0]
     # The map frame placed on the ground truth once, by the map drive's own SE(3)
@@ -328,15 +346,15 @@ def main():
     map_poses = read_kitti(os.path.join(out, "map", "poses_kitti.txt"))
     map_eval = evaluate(a.build, map_poses, gt[:m + 1], out, "map_se3")
     t_gt_map = map_eval["T_gt_estimate"]
-    err_aligned = {i: dist(transform_point(t_gt_map, position(loc[i - second_first])),
+    err_aligned = {i: dist(transform_point(t_gt_map, position(loc[index[i]])),
                            position(gt[i])) for i in on_loc}
     ate_aligned = math.sqrt(sum(e * e for e in err_aligned.values()) / max(1, len(on_loc)))
-    map_err = {i: truth.error(i, loc[i - second_first]) for i in on_loc}
+    map_err = {i: truth.error(i, loc[index[i]]) for i in on_loc}
     wrong_on_map = [i for i in on_loc if map_err[i] is not None and map_err[i] > 2.0]
     map_rmse = math.sqrt(sum(e * e for e in map_err.values() if e is not None) /
                          max(1, len([e for e in map_err.values() if e is not None])))
     print("\nsecond pass (pcl_rast_localize, no initial pose), %d frames, %d on mapped roads, "
-          "%d off the map:" % (n - second_first, len(on_map), len(off_map)))
+          "%d off the map:" % (len(second), len(on_map), len(off_map)))
     print("  on mapped roads: %d of %d localized (%.1f %%), ATE in the map frame %.3f m "
           "(against ground truth: includes the map's own error), largest %.3f m"
           % (len(on_loc), len(on_map), 100.0 * len(on_loc) / max(1, len(on_map)), ate_map,
@@ -355,7 +373,8 @@ def main():
              len(wrong_on_map)))
     off_status = {}
     for i in off_map:
-        off_status[rows[i - second_first]["status"]] = off_status.get(rows[i - second_first]["status"], 0) + 1
+        status = rows[index[i]]["status"]
+        off_status[status] = off_status.get(status, 0) + 1
     print("  off the map: %s" % off_status)
     map_summary = json.load(open(os.path.join(out, "map", "summary.json")))
     map_ate = ate(a.build, map_poses, gt[:m + 1], out, "map", "none")
@@ -366,7 +385,7 @@ def main():
     ls = json.load(open(os.path.join(out, "localize", "summary.json")))
     al = json.load(open(os.path.join(out, "alone", "summary.json")))
     print("\nspeed on the same %d scans: localize %.1f fps, pcl_rast_slam %.1f fps (ratio %.2f)"
-          % (n - second_first, ls["fps"], al["fps"], ls["fps"] / al["fps"]))
+          % (len(second), ls["fps"], al["fps"], ls["fps"] / al["fps"]))
     print("session of %d frames (%d key-frames): loaded in %.2f s; localize peak RSS %.0f MB, "
           "the run that wrote it %.0f MB"
           % (m + 1, ls["session_keyframes"], ls["session_load_s"], ls["peak_rss_mb"],
@@ -380,7 +399,7 @@ def main():
 
     # ---- kidnapping: 200 frames cut out of the second drive ----
     try:
-        kidnap(a, out, sim, session, gt, n, second_first, on_map, tool, loc, localized, truth)
+        kidnap(a, out, sim, session, gt, second, on_map, tool, loc, localized, truth)
     except Exception as e:  # report and go on to the cold starts
         print("\nkidnapping: not measured: %s" % e)
     cold_starts(a, out, sim, session, gt, n, on_map, tool, truth)
@@ -417,20 +436,23 @@ def multi_session(a, out, gt, session, second_first):
 
 def cold_starts(a, out, sim, session, gt, n, on_map, tool, truth):
     rng = random.Random(a.seed)
-    starts = sorted(rng.sample([i for i in on_map if i + 2 < n], min(a.cold_starts, len(on_map))))
+    last = 2 * a.stride  # the third scan of the start
+    starts = sorted(rng.sample([i for i in on_map if i + last < n],
+                               min(a.cold_starts, len(on_map))))
     ok = bad = bad_gt = 0
     times_s = []
     for f in starts:
         d = os.path.join(out, "cold", str(f))
         tool("pcl_rast_localize", ["-session", session, "-input", sim, "-first", str(f), "-last",
-                                   str(f + 2), "-output", d], "cold.log")
+                                   str(f + last), "-stride", str(a.stride), "-output", d],
+             "cold.log")
         cp = read_kitti(os.path.join(d, "poses_kitti.txt"))
         cr = statuses(os.path.join(d, "status.csv"))
         first = next((j for j, r in enumerate(cr) if localized_online(r)), None)
         if first is None:
             continue
-        e_gt = dist(position(cp[first]), position(gt[f + first]))
-        e = truth.error(f + first, cp[first])
+        e_gt = dist(position(cp[first]), position(gt[f + first * a.stride]))
+        e = truth.error(f + first * a.stride, cp[first])
         times_s.append(sum(float(r["ms"]) for r in cr[:first + 1]) / 1000.0)
         bad_gt += e_gt > 2.0
         if e is None or e > 2.0:
