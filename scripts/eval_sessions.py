@@ -175,14 +175,13 @@ def localized_online(row):
     return row["status"] == "localized" and row.get("backtracked", "0") != "1"
 
 
-def kidnap(a, out, sim, session, gt, second, on_map, tool, loc, localized, truth):
+def kidnap(a, out, sim, session, gt, second, index, on_map, tool, loc, localized, truth):
     if len(on_map) <= 400 // a.stride:
         print("\nkidnapping: not measured: %d frames on mapped roads" % len(on_map))
         return
 
     span = 200  # frames of the drive (every a.stride-th of them is in the input)
     cut = on_map[len(on_map) // 2] - span // 2
-    index = {i: k for k, i in enumerate(second)}
     kid = os.path.join(out, "kidnap_input")
     shutil.rmtree(kid, ignore_errors=True)
     os.makedirs(os.path.join(kid, "pcd"))
@@ -399,7 +398,7 @@ def main():
 
     # ---- kidnapping: 200 frames cut out of the second drive ----
     try:
-        kidnap(a, out, sim, session, gt, second, on_map, tool, loc, localized, truth)
+        kidnap(a, out, sim, session, gt, second, index, on_map, tool, loc, localized, truth)
     except Exception as e:  # report and go on to the cold starts
         print("\nkidnapping: not measured: %s" % e)
     cold_starts(a, out, sim, session, gt, n, on_map, tool, truth)
