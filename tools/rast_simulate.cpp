@@ -40,6 +40,7 @@ run(int argc, char** argv)
   std::string traj, path, output, sensor = pcl::rast::toString(params.sensor);
   std::string traj_frame = "camera", format = "bin";
   int first = 0, last = -1, every = 1, seed = static_cast<int>(params.seed);
+  int drive_seed = 0;
   int threads = params.num_threads;
   double rate_hz = path_params.rate_hz, speed_mps = path_params.speed_mps;
   bool moving_cars = params.world.moving_cars;
@@ -76,6 +77,10 @@ run(int argc, char** argv)
   args.addInt("last", "last trajectory frame written (-1: the last one)", &last);
   args.addInt("every", "write every K-th frame (K = 5 at 10 Hz gives 2 Hz)", &every);
   args.addInt("seed", "random seed (world and noise)", &seed);
+  args.addInt("drive-seed",
+              "another drive through the world of -seed: its traffic, noise and sensor "
+              "calibration from this seed (0: -seed)",
+              &drive_seed);
   args.addChoice("format", "scan format", &format, {"bin", "pcd"});
   args.addInt("frames", "generated path: number of poses", &path_params.num_frames);
   args.addDouble(
@@ -147,6 +152,9 @@ run(int argc, char** argv)
     throw std::invalid_argument("-traj-frame applies to -traj only");
   if (seed < 0)
     throw std::invalid_argument("-seed must be >= 0, got " + std::to_string(seed));
+  if (drive_seed < 0)
+    throw std::invalid_argument("-drive-seed must be >= 0, got " +
+                                std::to_string(drive_seed));
   if (every < 1)
     throw std::invalid_argument("-every must be >= 1, got " + std::to_string(every));
   if (!(rate_hz > 0.0))
@@ -154,6 +162,7 @@ run(int argc, char** argv)
 
   params.sensor = pcl::rast::sensorModelFromString(sensor);
   params.seed = static_cast<std::uint64_t>(seed);
+  params.drive_seed = static_cast<std::uint64_t>(drive_seed);
   params.world.moving_cars = moving_cars;
   params.world.traffic.mode = pcl::rast::trafficModeFromString(traffic);
   params.raw_sweep = raw_sweep;

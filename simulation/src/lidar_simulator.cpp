@@ -36,6 +36,13 @@ struct EIGEN_ALIGN16 PointXYZIT
   PCL_MAKE_ALIGNED_OPERATOR_NEW
 };
 
+/// The seed of the drive: of the noise, the imperfections and the traffic.
+std::uint64_t
+driveSeed(const LidarSimulatorParams& params)
+{
+  return params.drive_seed != 0 ? params.drive_seed : params.seed;
+}
+
 /// Counter-based random numbers: the noise of ray k of frame i is a hash of
 /// (seed, i, k) and depends on nothing else. Each 64-bit hash gives two uniforms.
 std::uint64_t
@@ -241,7 +248,7 @@ LidarSimulator::LidarSimulator(const LidarSimulatorParams& params,
     beam_range_bias_m_.resize(static_cast<std::size_t>(beams));
     for (int b = 0; b < beams; ++b) {
       double u[2];
-      beamUniforms(params.seed, static_cast<std::uint64_t>(b), u);
+      beamUniforms(driveSeed(params), static_cast<std::uint64_t>(b), u);
       elevation_bias_rad[b] = ip.elevation_bias_std_rad * gaussianFromUniform(u[0]);
       beam_range_bias_m_[b] = ip.range_bias_std_m * gaussianFromUniform(u[1]);
     }
@@ -258,8 +265,12 @@ LidarSimulator::LidarSimulator(const LidarSimulatorParams& params,
   std::vector<double> times_s(T_world_body_.size());
   for (std::size_t i = 0; i < times_s.size(); ++i)
     times_s[i] = timestamp(i);
-  world_ = std::make_shared<SimulatedWorld>(
-      params.world, T_world_body_, spec_.mount_height_m, params.seed, times_s);
+  world_ = std::make_shared<SimulatedWorld>(params.world,
+                                            T_world_body_,
+                                            spec_.mount_height_m,
+                                            params.seed,
+                                            times_s,
+                                            params.drive_seed);
 }
 
 double
@@ -421,10 +432,10 @@ LidarSimulator::sensorEffects(std::size_t i,
     point_times_s->reserve(n);
   }
   const double max_r = spec_.max_range_m;
-  const std::uint64_t frame_key = frameKey(params_.seed, i);
+  const std::uint64_t frame_key = frameKey(driveSeed(params_), i);
   const bool imperfect = params_.imperfections;
   const SensorImperfectionParams& ip = params_.imperfection_params;
-  const std::uint64_t imperfection_key = imperfectionKey(params_.seed, i);
+  const std::uint64_t imperfection_key = imperfectionKey(driveSeed(params_), i);
   // A raw sweep comes out in firing order, as a driver writes it (the reader checks
   // that a time field is in order); an instantaneous scan column by column from
   // azimuth 0, as before.

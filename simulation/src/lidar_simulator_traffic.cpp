@@ -433,7 +433,8 @@ TrafficModel::TrafficModel(const TrafficParams& params,
                            std::vector<TrafficPathPoint> path,
                            const PoseVector& T_world_body,
                            const std::vector<double>& timestamps_s,
-                           std::uint64_t seed)
+                           std::uint64_t seed,
+                           std::uint64_t drive_seed)
     : impl_(std::make_unique<Impl>())
 {
   Impl& m = *impl_;
@@ -483,13 +484,15 @@ TrafficModel::TrafficModel(const TrafficParams& params,
         m.lane_window_m =
             std::min(m.lane_window_m, 0.45 * (coarse[j]->s_m - coarse[i]->s_m));
 
-  Draw lane_draw(seed, 2, 0);
+  // The stops (and the cross roads they open) are the world's; the vehicles are the
+  // drive's.
+  Draw lane_draw(drive_seed, 2, 0);
   m.lane_speed_mps[0] = lane_draw(9.0, 13.0);
   m.lane_speed_mps[1] = lane_draw(10.0, 14.0);
-  m.placeCompanions(seed);
-  m.placeFreeLane(seed, 1);
-  m.placeFreeLane(seed, -1);
-  m.placeCrossTraffic(seed);
+  m.placeCompanions(drive_seed);
+  m.placeFreeLane(drive_seed, 1);
+  m.placeFreeLane(drive_seed, -1);
+  m.placeCrossTraffic(drive_seed);
 
   int id = 0;
   for (auto* group : {&m.companions, &m.lanes[0], &m.lanes[1], &m.cross})

@@ -102,7 +102,8 @@ SimulatedWorld::SimulatedWorld(const WorldParams& params,
                                const PoseVector& T_world_body,
                                double body_height_m,
                                std::uint64_t seed,
-                               const std::vector<double>& timestamps_s)
+                               const std::vector<double>& timestamps_s,
+                               std::uint64_t drive_seed)
     : impl_(std::make_unique<Impl>())
 {
   std::string why;
@@ -119,6 +120,7 @@ SimulatedWorld::SimulatedWorld(const WorldParams& params,
                                 " poses");
   impl_->params = params;
   impl_->seed = seed;
+  impl_->drive_seed = drive_seed != 0 ? drive_seed : seed;
   impl_->buildPath(T_world_body, body_height_m);
   impl_->buildDistanceField();
   impl_->buildScenes();

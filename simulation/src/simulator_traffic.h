@@ -111,13 +111,15 @@ public:
   /// \param[in] path dense path samples, increasing arc length
   /// \param[in] T_world_body the ego poses
   /// \param[in] timestamps_s one per pose, increasing
-  /// \param[in] seed random seed
+  /// \param[in] seed the world's random seed: where the ego's stops open a cross road
+  /// \param[in] drive_seed the vehicles' random seed
   TrafficModel(const TrafficParams& params,
                double lane_offset_m,
                std::vector<TrafficPathPoint> path,
                const PoseVector& T_world_body,
                const std::vector<double>& timestamps_s,
-               std::uint64_t seed);
+               std::uint64_t seed,
+               std::uint64_t drive_seed);
   ~TrafficModel();
   TrafficModel(const TrafficModel&) = delete;
   TrafficModel& operator=(const TrafficModel&) = delete;

@@ -441,10 +441,11 @@ SimulatedWorld::Impl::placeMovingCars(const PoseVector& poses,
                                                                std::move(points),
                                                                poses,
                                                                timestamps_s,
-                                                               seed);
+                                                               seed,
+                                                               drive_seed);
     return;
   }
-  Rng rng(hashOf(seed, 7));
+  Rng rng(hashOf(drive_seed, 7));
   const double length = path.back().s;
   for (int k = 0; k < params.num_moving_cars; ++k)
     cars.push_back({rng.uniform(0.0, length),

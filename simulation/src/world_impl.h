@@ -234,6 +234,7 @@ struct SimulatedWorld::Impl
 {
   WorldParams params;
   std::uint64_t seed = 0;
+  std::uint64_t drive_seed = 0; ///< the moving traffic's (SimulatedWorld's drive_seed)
   std::vector<PathSample> path;
 
   std::vector<SceneStretch> stretches;       ///< by arc length, the first at s = 0

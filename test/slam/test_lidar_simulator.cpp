@@ -1638,6 +1638,91 @@ TEST(LidarSimulator, RealisticTrafficDeterministicAndFrameIndependent)
   EXPECT_FALSE(sameCloud(ca, ce));
 }
 
+TEST(LidarSimulator, DriveSeedIsAnotherDriveThroughTheSameWorld)
+{
+  // drive_seed: other traffic, other noise and another sensor unit's calibration in
+  // the world of the seed. Shares of points of one scan with a point of the other
+  // within 1 mm, the ego standing at a stop with traffic around and crossing ahead.
+  const PoseVector poses = pcl::rast::generatePath(stopAndGoParams());
+  const std::size_t i = 185;
+  const auto scan = [&](std::uint64_t seed, std::uint64_t drive_seed, bool clean) {
+    LidarSimulatorParams p = makeParams(SensorModel::kVlp16, seed);
+    p.world = realisticWorld();
+    p.drive_seed = drive_seed;
+    p.imperfections = !clean;
+    if (clean) {
+      p.range_noise_std_m = 0.0;
+      p.dropout_rate = 0.0;
+    }
+    LidarSimulator sim(p, poses);
+    Cloud cloud;
+    sim.simulateFrame(i, cloud);
+    return std::make_pair(cloud, sim.world().movingVehicles(sim.timestamp(i)));
+  };
+  const auto shared = [](const Cloud& a, const Cloud& b) {
+    pcl::KdTreeFLANN<pcl::PointXYZI> tree;
+    tree.setInputCloud(std::make_shared<Cloud>(b));
+    std::vector<int> k(1);
+    std::vector<float> d2(1);
+    std::size_t near = 0;
+    for (const auto& q : a.points)
+      near += tree.nearestKSearch(q, 1, k, d2) == 1 && d2[0] < 1e-6f;
+    return static_cast<double>(near) / static_cast<double>(a.size());
+  };
+  // 0 and the seed itself are the drive of the seed, bit for bit.
+  EXPECT_TRUE(sameCloud(scan(3, 0, false).first, scan(3, 3, false).first));
+  // Another drive seed: another scan, other vehicles, other noise.
+  const auto [a, va] = scan(3, 0, false);
+  const auto [b, vb] = scan(3, 9, false);
+  EXPECT_FALSE(sameCloud(a, b));
+  ASSERT_GT(va.size(), 3u);
+  ASSERT_GT(vb.size(), 3u);
+  std::size_t moved = 0;
+  for (const auto& v : va)
+    moved += std::none_of(vb.begin(), vb.end(), [&](const auto& w) {
+      return std::hypot(v.x_m - w.x_m, v.y_m - w.y_m) < 0.5;
+    });
+  EXPECT_GT(moved, va.size() / 2);
+  // The static world is the seed's: straight down from 60 m over the stop, every ray
+  // that ends more than 4 m above the ground (above any vehicle) ends on the same
+  // static surface in both drives, cross roads cleared alike. Another seed is another
+  // world.
+  const auto world = [&](std::uint64_t seed, std::uint64_t drive_seed) {
+    LidarSimulatorParams p = makeParams(SensorModel::kVlp16, seed);
+    p.world = realisticWorld();
+    p.drive_seed = drive_seed;
+    return std::make_unique<LidarSimulator>(p, poses);
+  };
+  const auto high_hits_differ = [&](const LidarSimulator& x, const LidarSimulator& y) {
+    const Eigen::Vector3d centre = poses[i].translation();
+    const double t = x.timestamp(i);
+    std::pair<int, int> high_and_differ{0, 0};
+    for (double dx = -60.0; dx <= 60.0; dx += 0.5)
+      for (double dy = -60.0; dy <= 60.0; dy += 0.5) {
+        const Eigen::Vector3d o = centre + Eigen::Vector3d(dx, dy, 60.0);
+        const double ground = x.world().groundHeight(o.x(), o.y());
+        pcl::rast::RayHit hx, hy;
+        const bool bx = x.world().castRay(o, -Eigen::Vector3d::UnitZ(), 200.0, t, hx);
+        const bool by = y.world().castRay(o, -Eigen::Vector3d::UnitZ(), 200.0, t, hy);
+        const bool high_x = bx && o.z() - hx.range_m > ground + 4.0;
+        const bool high_y = by && o.z() - hy.range_m > ground + 4.0;
+        if (!high_x && !high_y)
+          continue;
+        ++high_and_differ.first;
+        high_and_differ.second += !(bx && by && hx.range_m == hy.range_m);
+      }
+    return high_and_differ;
+  };
+  const auto drive_a = world(3, 0), drive_b = world(3, 9), other = world(4, 9);
+  const auto same_world = high_hits_differ(*drive_a, *drive_b);
+  EXPECT_GT(same_world.first, 2000);
+  EXPECT_EQ(same_world.second, 0) << same_world.first;
+  const auto other_world = high_hits_differ(*drive_a, *other);
+  EXPECT_GT(other_world.second, other_world.first / 4);
+  // With noise, a point rarely lands within 1 mm of the other drive's.
+  EXPECT_LT(shared(a, b), 0.2);
+}
+
 TEST(LidarSimulator, RealisticTrafficOnKittiGroundTruth)
 {
   // KITTI 07 stands ~6 s at a light (frames ~660-725) with millimetre jitter in its

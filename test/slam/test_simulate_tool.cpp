@@ -55,6 +55,12 @@ protected:
   {
     return "'" + (dir_ / name).string() + "'";
   }
+  /// The bytes of the second scan of the .bin sequence written to \a name.
+  std::string bytes(const std::string& name) const
+  {
+    std::ifstream in(dir_ / name / "velodyne" / "000001.bin", std::ios::binary);
+    return std::string((std::istreambuf_iterator<char>(in)), {});
+  }
   fs::path dir_, log_;
 };
 
@@ -188,10 +194,6 @@ TEST_F(SimulateTool, ImperfectionsSwitch)
   ASSERT_EQ(runSimulate(base + out("clean"), log_), 0);
   ASSERT_EQ(runSimulate(base + out("a") + " -imperfections", log_), 0);
   ASSERT_EQ(runSimulate(base + out("b") + " -imperfections", log_), 0);
-  auto bytes = [&](const std::string& name) {
-    std::ifstream in(dir_ / name / "velodyne" / "000001.bin", std::ios::binary);
-    return std::string((std::istreambuf_iterator<char>(in)), {});
-  };
   EXPECT_GT(bytes("clean").size(), 0u);
   EXPECT_NE(bytes("clean"), bytes("a"));
   EXPECT_EQ(bytes("a"), bytes("b"));
@@ -215,6 +217,28 @@ TEST_F(SimulateTool, ImperfectionsSwitch)
   }
 }
 
+TEST_F(SimulateTool, DriveSeedSwitch)
+{
+  // -drive-seed: another drive through the world of -seed (its library side is pinned
+  // in LidarSimulator.DriveSeedIsAnotherDriveThroughTheSameWorld). 0 and the seed
+  // itself give the seed's scans; another one other scans.
+  const std::string base =
+      "-path straight -frames 2 -sensor vlp16 -seed 5 -imperfections -output ";
+  ASSERT_EQ(runSimulate(base + out("seed"), log_), 0);
+  ASSERT_EQ(runSimulate(base + out("zero") + " -drive-seed 0", log_), 0);
+  ASSERT_EQ(runSimulate(base + out("same") + " -drive-seed 5", log_), 0);
+  ASSERT_EQ(runSimulate(base + out("other") + " -drive-seed 6", log_), 0);
+  EXPECT_GT(bytes("seed").size(), 0u);
+  EXPECT_EQ(bytes("seed"), bytes("zero"));
+  EXPECT_EQ(bytes("seed"), bytes("same"));
+  EXPECT_NE(bytes("seed"), bytes("other"));
+  ASSERT_EQ(runSimulate(base + out("bad") + " -drive-seed -3", log_), 1);
+  std::ifstream in(log_);
+  const std::string text((std::istreambuf_iterator<char>(in)), {});
+  EXPECT_NE(text.find("-drive-seed must be >= 0, got -3"), std::string::npos) << text;
+  EXPECT_FALSE(fs::exists(dir_ / "bad"));
+}
+
 TEST_F(SimulateTool, SceneAndWorldSwitches)
 {
   ASSERT_EQ(runSimulate("-h", log_), 0);
@@ -230,10 +254,6 @@ TEST_F(SimulateTool, SceneAndWorldSwitches)
       runSimulate(base + out("all") + " -scene mixed -rough-ground -porous-vegetation",
                   log_),
       0);
-  auto bytes = [&](const std::string& name) {
-    std::ifstream in(dir_ / name / "velodyne" / "000001.bin", std::ios::binary);
-    return std::string((std::istreambuf_iterator<char>(in)), {});
-  };
   EXPECT_GT(bytes("tunnel").size(), 0u);
   EXPECT_NE(bytes("suburb"), bytes("tunnel"));
   EXPECT_GT(bytes("all").size(), 0u);

@@ -319,13 +319,16 @@ public:
   /// \param[in] seed random seed
   /// \param[in] timestamps_s time of each pose (the ego's timing, for the realistic
   /// traffic), or empty for poses 0.1 s apart
+  /// \param[in] drive_seed seeds the moving traffic instead of \a seed (0: \a seed):
+  /// another drive through the same static world
   /// \throws std::invalid_argument on invalid params, an empty trajectory or
   /// timestamps that do not match the poses (realistic traffic: or do not increase).
   SimulatedWorld(const WorldParams& params,
                  const PoseVector& T_world_body,
                  double body_height_m,
                  std::uint64_t seed,
-                 const std::vector<double>& timestamps_s = {});
+                 const std::vector<double>& timestamps_s = {},
+                 std::uint64_t drive_seed = 0);
   ~SimulatedWorld();
   SimulatedWorld(const SimulatedWorld&) = delete;
   SimulatedWorld& operator=(const SimulatedWorld&) = delete;
@@ -415,6 +418,11 @@ struct LidarSimulatorParams
   SensorModel sensor = SensorModel::kHdl64;
   WorldParams world;
   std::uint64_t seed = 1;          ///< seeds the world and every frame's noise
+  /// Another drive through the world of \a seed: when not 0, the moving traffic, every
+  /// frame's noise and the sensor's imperfections (another unit's calibration) are
+  /// drawn from it instead. The static world, the trajectory's intersections (where
+  /// cross traffic may pass) and the porous vegetation stay those of \a seed.
+  std::uint64_t drive_seed = 0;
   double frame_period_s = 0.1;     ///< times when no timestamps are given
   double range_noise_std_m = -1.0; ///< < 0: the sensor's default
   double dropout_rate = -1.0;      ///< < 0: the sensor's default
