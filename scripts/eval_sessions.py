@@ -20,13 +20,19 @@ revisits the first drive's roads. Then:
 "On mapped roads": within 5 m of a first-drive position (ground truth); "off the map":
 farther than 20 m from every one.
 
+With --drive-seed D the second drive comes from a second simulation of the same world
+along the same trajectory (pcl_rast_simulate -drive-seed D): other traffic, other noise
+and another sensor unit's per-beam calibration. The map is still made from the first
+simulation's frames 0..M; every step on the second drive reads the second simulation.
+
 With --stride S the second drive is every S-th scan (a vehicle S times as fast at the
 same scan rate; the kidnapping cuts the same 200 frames of the drive, 200 / S scans, so
 that it lands as far away; a cold start takes 3 scans), and there is no merge.
 
   scripts/eval_sessions.py [-b BUILD] [-o OUT] [-q SEQ] [-m MAP_LAST] [-r SEED]
                            [-n COLD_STARTS] [-l LAST] [--keep] [--no-merge]
-                           [--stride S] [--sim-args ARGS] [--localize-args ARGS]
+                           [--stride S] [--drive-seed D] [--sim-args ARGS]
+                           [--localize-args ARGS]
 """
 import argparse
 import csv
@@ -245,6 +251,10 @@ def main():
                     help="skip the multi-session merge (the longest step)")
     ap.add_argument("--stride", type=int, default=1,
                     help="the second drive at every S-th scan (S times as fast; no merge)")
+    ap.add_argument("--drive-seed", type=int, default=0,
+                    help="the second drive from another simulation of the same world: "
+                         "other traffic, noise and sensor calibration (0: the same "
+                         "simulation)")
     ap.add_argument("--sim-args", default="",
                     help="extra arguments of pcl_rast_simulate, e.g. '-elevation-bias 0' "
                          "(a diagnostic: the realistic world is the default)")
@@ -257,6 +267,8 @@ def main():
     a = ap.parse_args()
     if a.stride < 1:
         sys.exit("--stride must be >= 1, got %d" % a.stride)
+    if a.drive_seed < 0:
+        sys.exit("--drive-seed must be >= 0, got %d" % a.drive_seed)
     if a.stride > 1:
         a.no_merge = True
     tools = os.path.join(a.build, "tools")
@@ -273,22 +285,35 @@ def main():
     if a.stride > 1:
         print("second drive at every %d-th scan (%d times as fast)" % (a.stride, a.stride),
               flush=True)
+    if a.drive_seed:
+        print("second drive from another simulation of the world: -drive-seed %d (other "
+              "traffic, noise and sensor calibration)" % a.drive_seed, flush=True)
     if a.localize_args:
         print("pcl_rast_localize with %s" % a.localize_args, flush=True)
     if a.slam_args:
         print("pcl_rast_slam with %s" % a.slam_args, flush=True)
 
-    sim = os.path.join(out, "sim")
-    if not os.path.exists(os.path.join(sim, "poses.txt")):
-        rc, s = run([os.path.join(tools, "pcl_rast_simulate"), "-traj", gt_path, "-output", sim,
-                     "-seed", str(a.seed), "-last", str(a.last), "-raw-sweep", "-moving-cars", "-traffic", "realistic",
-                     "-imperfections", "-format", "pcd", "-scene", "mixed", "-rough-ground",
-                     "-porous-vegetation", "-threads", "2"] + a.sim_args.split(),
-                    os.path.join(out, "simulate.log"))
+    def simulate(folder, extra, log):
+        if os.path.exists(os.path.join(folder, "poses.txt")):
+            return
+        rc, s = run([os.path.join(tools, "pcl_rast_simulate"), "-traj", gt_path, "-output",
+                     folder, "-seed", str(a.seed), "-last", str(a.last), "-raw-sweep",
+                     "-moving-cars", "-traffic", "realistic", "-imperfections", "-format",
+                     "pcd", "-scene", "mixed", "-rough-ground", "-porous-vegetation",
+                     "-threads", "2"] + extra + a.sim_args.split(), os.path.join(out, log))
         if rc != 0:
-            sys.exit("pcl_rast_simulate failed: see %s/simulate.log" % out)
-        print("simulated in %.0f s" % s, flush=True)
+            sys.exit("pcl_rast_simulate failed: see %s/%s" % (out, log))
+        print("simulated %s in %.0f s" % (os.path.basename(folder), s), flush=True)
+
+    sim = os.path.join(out, "sim")  # the first drive's (and the second's by default)
+    simulate(sim, [], "simulate.log")
     gt = read_kitti(os.path.join(sim, "poses.txt"))
+    drive = sim  # the second drive's scans
+    if a.drive_seed:
+        drive = os.path.join(out, "sim_drive%d" % a.drive_seed)
+        simulate(drive, ["-drive-seed", str(a.drive_seed)], "simulate_drive.log")
+        if read_kitti(os.path.join(drive, "poses.txt")) != gt:
+            sys.exit("the second simulation's poses differ from the first's")
     n, m = len(gt), a.map_last
     second_first = m + 1
     second = list(range(second_first, n, a.stride))  # the second drive's scans
@@ -308,13 +333,13 @@ def main():
     steps = [
         ("map", "pcl_rast_slam", ["-input", sim, "-last", str(m), "-output",
                                   os.path.join(out, "map"), "-save-session", session]),
-        ("localize", "pcl_rast_localize", ["-session", session, "-input", sim, "-first",
+        ("localize", "pcl_rast_localize", ["-session", session, "-input", drive, "-first",
                                            str(second_first), "-output",
                                            os.path.join(out, "localize")] + strided),
-        ("alone", "pcl_rast_slam", ["-input", sim, "-first", str(second_first), "-output",
+        ("alone", "pcl_rast_slam", ["-input", drive, "-first", str(second_first), "-output",
                                     os.path.join(out, "alone"), "-save-session",
                                     os.path.join(out, "alone_session")] + strided),
-        ("merge", "pcl_rast_slam", ["-input", sim, "-first", str(second_first), "-output",
+        ("merge", "pcl_rast_slam", ["-input", drive, "-first", str(second_first), "-output",
                                     os.path.join(out, "merge"), "-session", session,
                                     "-save-session", os.path.join(out, "merged_session")]),
     ]
@@ -398,12 +423,14 @@ def main():
 
     # ---- kidnapping: 200 frames cut out of the second drive ----
     try:
-        kidnap(a, out, sim, session, gt, second, index, on_map, tool, loc, localized, truth)
+        kidnap(a, out, drive, session, gt, second, index, on_map, tool, loc, localized,
+               truth)
     except Exception as e:  # report and go on to the cold starts
         print("\nkidnapping: not measured: %s" % e)
-    cold_starts(a, out, sim, session, gt, n, on_map, tool, truth)
+    cold_starts(a, out, drive, session, gt, n, on_map, tool, truth)
     if not a.keep:
         shutil.rmtree(sim, ignore_errors=True)
+        shutil.rmtree(drive, ignore_errors=True)
 
 
 def multi_session(a, out, gt, session, second_first):
