@@ -354,8 +354,11 @@ Odometry::Impl::trackDense(const Frame& frame,
   // Along the directions the scan does not constrain (a corridor's axis, an open field's
   // x, y and yaw) strong features set the pose; weak ones (a few posts of a guard rail,
   // a passing car) do not alone: the constant-velocity prior does, moved part of the
-  // way to them where they are near it (weak_feature_share).
-  bool strong = inliers >= params.strong_feature_inliers;
+  // way to them where they are near it (weak_feature_share). Before any velocity was
+  // measured (a run's second frame) the prior is no motion at all, which says nothing
+  // about a moving vehicle: the features set those directions, weak or not. (A VLP-16
+  // starting at 10 m/s in a street measured 0.03 m a frame from there on.)
+  bool strong = inliers >= params.strong_feature_inliers || velocity_age_frames < 0;
   Pose3d T_world_weak_anchor;
   const DenseOptions weak_anchored = weakAnchored(frame, track, T_world_weak_anchor);
   const DenseOptions anchored =

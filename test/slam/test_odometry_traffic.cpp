@@ -32,15 +32,15 @@ using namespace pcl::rast;
 
 using pcl_rast_test::streetParams;
 
-/// The largest error of a frame-to-frame motion [m].
+/// The largest error of a frame-to-frame motion [m], \a estimate starting at frame
+/// \a first of \a sim.
 double
-worstStep(const PoseVector& estimate, const LidarSimulator& sim)
+worstStep(const PoseVector& estimate, const LidarSimulator& sim, std::size_t first = 0)
 {
-  const Pose3d T0_inv = sim.sensorPose(0).inverse();
   double worst = 0.0;
   for (std::size_t i = 1; i < estimate.size(); ++i) {
     const Pose3d truth =
-        (T0_inv * sim.sensorPose(i - 1)).inverse() * T0_inv * sim.sensorPose(i);
+        sim.sensorPose(first + i - 1).inverse() * sim.sensorPose(first + i);
     const Pose3d estimated = estimate[i - 1].inverse() * estimate[i];
     worst = std::max(worst, (truth.inverse() * estimated).translation().norm());
   }
@@ -49,10 +49,10 @@ worstStep(const PoseVector& estimate, const LidarSimulator& sim)
 
 /// The start of a KITTI sequence in the realistic world of `pcl_rast_simulate -traj
 /// SEQ.txt -seed SEED -raw-sweep -moving-cars -traffic realistic -imperfections -scene
-/// mixed -rough-ground -porous-vegetation` (or of \a params' sensor and scene), its first
-/// \a frames scans read back through the PCD files as pcl_rast_odometry reads them (time
-/// field since the sweep's start): the outcome of such a drive hangs on the last bits
-/// of the point times.
+/// mixed -rough-ground -porous-vegetation` (or of \a params' sensor and scene), its
+/// \a frames scans from frame \a first on read back through the PCD files as
+/// pcl_rast_odometry reads them (time field since the sweep's start): the outcome of such
+/// a drive hangs on the last bits of the point times.
 struct KittiStart
 {
   std::unique_ptr<LidarSimulator> sim;
@@ -72,7 +72,8 @@ KittiStart
 kittiStart(const std::filesystem::path& data,
            const std::string& sequence,
            const LidarSimulatorParams& params,
-           std::size_t frames)
+           std::size_t frames,
+           std::size_t first = 0)
 {
   const Trajectory gt =
       readTrajectory((data / "kitti-gt-poses" / (sequence + ".txt")).string());
@@ -80,7 +81,7 @@ kittiStart(const std::filesystem::path& data,
   start.sim = std::make_unique<LidarSimulator>(
       params, cameraToLidarPoses(gt.poses, kittiAxisChangeCamLidar()));
   const std::filesystem::path dir = ::pcl_rast_test::makeTempDir("kitti_start");
-  start.sim->writeSequence(dir.string(), ScanFormat::kPcd, 0, frames - 1, 1);
+  start.sim->writeSequence(dir.string(), ScanFormat::kPcd, first, first + frames - 1, 1);
   const SequenceReader reader(dir.string());
   for (std::size_t i = 0; i < frames; ++i)
     start.scans.push_back(reader.read(i));
@@ -306,6 +307,33 @@ TEST(OdometryTraffic, AColdStartThatTrackedNothingSolvesItsMotionFromBothScans)
   // motion (0.50 m for 0.83 m: 0.33 m off) and the first scan stayed distorted in the
   // map.
   EXPECT_LT(worst, 0.1);
+}
+
+TEST(OdometryTraffic, AVlp16StartingAtSpeedInAStreetTakesItsWeakFeatures)
+{
+  // A VLP-16 run that starts at 10.6 m/s in a street whose axis the scan hardly
+  // constrains. The second scan pairs 10-39 feature inliers, weak ones, and before any
+  // velocity is measured the constant-velocity prior is no motion at all: taking the
+  // prior's side against the weak features, the second frame measured 0.32 m for 1.06
+  // and the next four 0.33-0.50 m. The features set the street's axis now. Tuning seed
+  // 43's world of KITTI 05 driven again with another drive seed (243: other traffic,
+  // noise and calibration), frames 1617-1631.
+  PCL_RAST_REQUIRE_SHARED_DATA(data);
+  LidarSimulatorParams params = kittiWorldParams(43);
+  params.sensor = SensorModel::kVlp16;
+  params.drive_seed = 243;
+  const std::size_t first = 1617, frames = 15;
+  const KittiStart start = kittiStart(data, "05", params, frames, first);
+  OdometryParams vlp16;
+  applySensorPreset(SensorPreset::kVlp16, vlp16);
+  const std::vector<OdometryFrameResult> results = trackScans(vlp16, start.scans);
+  const OdometryFrameResult& second = results[1];
+  EXPECT_EQ(second.status, TrackingStatus::kFeatures) << second.message;
+  const double worst = worstStep(posesOf(results), *start.sim, first);
+  std::cout << "VLP-16 starting at speed in a street: largest per-frame error " << worst
+            << " m over " << frames << " frames\n";
+  // Measured (pcl_rast_odometry on the same scans): 0.09 m; 0.74 m before.
+  EXPECT_LT(worst, 0.25);
 }
 
 } // namespace
