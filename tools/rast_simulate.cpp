@@ -76,7 +76,7 @@ run(int argc, char** argv)
   args.addInt("first", "first trajectory frame written", &first);
   args.addInt("last", "last trajectory frame written (-1: the last one)", &last);
   args.addInt("every", "write every K-th frame (K = 5 at 10 Hz gives 2 Hz)", &every);
-  args.addInt("seed", "random seed (world and noise)", &seed);
+  args.addInt("seed", "random seed (the world, and its drive unless -drive-seed)", &seed);
   args.addInt("drive-seed",
               "another drive through the world of -seed: its traffic, noise and sensor "
               "calibration from this seed (0: -seed)",
@@ -115,7 +115,7 @@ run(int argc, char** argv)
   args.addSwitch("imperfections",
                  "sensor imperfections: per-beam calibration error, 0.1 % early "
                  "outliers, mixed pixels at depth edges, intensity noise (fixed by "
-                 "-seed)",
+                 "-seed, or by -drive-seed when given)",
                  &imperfections);
   args.addDouble("elevation-bias",
                  "with -imperfections: each beam's elevation calibration error, 1 "
