@@ -313,7 +313,9 @@ struct OdometryParams
   int min_feature_inliers = 15;
   /// A feature estimate with at least this many inliers is trusted even when it is far
   /// from the constant-velocity prior (large motion); below it, and far from the
-  /// prior, both starts are refined and the better fit wins.
+  /// prior, both starts are refined and the better fit wins. Before a velocity has been
+  /// measured (a run's second frame) every estimate that passed the consistency check
+  /// counts as strong: the prior is then no motion at all.
   int strong_feature_inliers = 40;
   /// Below strong_feature_inliers, match the key-frame again by nearest neighbour alone
   /// (no ratio test, no mutual check) and keep whichever set RANSAC finds more inliers
