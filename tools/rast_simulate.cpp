@@ -67,8 +67,10 @@ run(int argc, char** argv)
                  &path,
                  {"straight", "loop", "eight"});
   args.addString("output", "output folder", &output, true);
-  args.addChoice(
-      "sensor", "sensor model", &sensor, {"hdl64", "vlp16", "os1-64", "os0-128"});
+  args.addChoice("sensor",
+                 "sensor model",
+                 &sensor,
+                 {"hdl64", "vlp16", "os1-64", "os0-128", "hdl32"});
   args.addChoice("traj-frame",
                  "frame of a KITTI-format -traj: camera (KITTI GT) or lidar",
                  &traj_frame,

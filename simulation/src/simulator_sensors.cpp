@@ -1,14 +1,14 @@
 /// \file simulator_sensors.cpp
-/// \brief The simulated sensors (HDL-64, VLP-16, OS1-64, OS0-128 handheld): beam
+/// \brief The simulated sensors (HDL-64, VLP-16, OS1-64, OS0-128 handheld, HDL-32E): beam
 /// layouts, ranges, noise, mounting and motion, and their names.
-
-#include <pcl/simulation/lidar_simulator.h>
 
 #include "simulator_hash.h"
 
 #include <algorithm>
 #include <cmath>
+#include <pcl/simulation/lidar_simulator.h>
 #include <stdexcept>
+#include <utility>
 
 namespace pcl {
 namespace rast {
@@ -32,6 +32,26 @@ linearBeams(int n, double top_deg, double bottom_deg)
   return b;
 }
 
+/// A head spinning on a car's roof, 1.73 m up as on KITTI's car.
+SensorSpec
+spinningHead(std::vector<double> beam_elevations_rad,
+             int azimuth_steps,
+             double min_range_m,
+             double max_range_m,
+             double range_noise_std_m,
+             double dropout_rate)
+{
+  SensorSpec s;
+  s.beam_elevations_rad = std::move(beam_elevations_rad);
+  s.azimuth_steps = azimuth_steps;
+  s.min_range_m = min_range_m;
+  s.max_range_m = max_range_m;
+  s.range_noise_std_m = range_noise_std_m;
+  s.dropout_rate = dropout_rate;
+  s.mount_height_m = 1.73;
+  return s;
+}
+
 } // namespace
 
 // ---- names ----
@@ -47,8 +67,10 @@ sensorModelFromString(const std::string& name)
     return SensorModel::kOs1_64;
   if (name == "os0-128")
     return SensorModel::kOs0_128;
+  if (name == "hdl32")
+    return SensorModel::kHdl32;
   throw std::invalid_argument("sensorModelFromString: unknown sensor '" + name +
-                              "' (hdl64, vlp16, os1-64, os0-128)");
+                              "' (hdl64, vlp16, os1-64, os0-128, hdl32)");
 }
 
 std::string
@@ -63,6 +85,8 @@ toString(SensorModel model)
     return "os1-64";
   case SensorModel::kOs0_128:
     return "os0-128";
+  case SensorModel::kHdl32:
+    return "hdl32";
   }
   return "unknown";
 }
@@ -72,55 +96,35 @@ toString(SensorModel model)
 SensorSpec
 sensorSpec(SensorModel model)
 {
-  SensorSpec s;
   switch (model) {
   case SensorModel::kHdl64: {
     // Two laser blocks as on the real unit: 1/3 deg spacing above -8.33 deg, ~1/2 below.
-    s.beam_elevations_rad = linearBeams(32, 2.0, -8.33);
+    std::vector<double> beams = linearBeams(32, 2.0, -8.33);
     const auto lower = linearBeams(32, -8.83, -24.8);
-    s.beam_elevations_rad.insert(s.beam_elevations_rad.end(), lower.begin(), lower.end());
-    s.azimuth_steps = 2000;
-    s.min_range_m = 2.0;
-    s.max_range_m = 120.0;
-    s.range_noise_std_m = 0.02;
-    s.dropout_rate = 0.01;
-    s.mount_height_m = 1.73;
-    break;
+    beams.insert(beams.end(), lower.begin(), lower.end());
+    return spinningHead(std::move(beams), 2000, 2.0, 120.0, 0.02, 0.01);
   }
   case SensorModel::kVlp16:
-    s.beam_elevations_rad = linearBeams(16, 15.0, -15.0);
-    s.azimuth_steps = 1800;
-    s.min_range_m = 1.0;
-    s.max_range_m = 100.0;
-    s.range_noise_std_m = 0.03;
-    s.dropout_rate = 0.01;
-    s.mount_height_m = 1.73;
-    break;
+    return spinningHead(linearBeams(16, 15.0, -15.0), 1800, 1.0, 100.0, 0.03, 0.01);
   case SensorModel::kOs1_64:
-    s.beam_elevations_rad = linearBeams(64, 16.6, -16.6);
-    s.azimuth_steps = 1024;
-    s.min_range_m = 0.8;
-    s.max_range_m = 120.0;
-    s.range_noise_std_m = 0.015;
-    s.dropout_rate = 0.005;
-    s.mount_height_m = 1.73;
-    break;
-  case SensorModel::kOs0_128:
-    s.beam_elevations_rad = linearBeams(128, 45.0, -45.0);
-    s.azimuth_steps = 1024;
-    s.min_range_m = 0.5;
-    s.max_range_m = 50.0;
-    s.range_noise_std_m = 0.02;
-    s.dropout_rate = 0.01;
+    return spinningHead(linearBeams(64, 16.6, -16.6), 1024, 0.8, 120.0, 0.015, 0.005);
+  case SensorModel::kOs0_128: {
+    SensorSpec s =
+        spinningHead(linearBeams(128, 45.0, -45.0), 1024, 0.5, 50.0, 0.02, 0.01);
     s.mount_height_m = 1.5;
     s.handheld = true;
     s.tilt_pitch_rad = deg(25.0);
     s.sway_pitch_rad = deg(3.0);
     s.sway_roll_rad = deg(2.0);
     s.sway_frequency_hz = 0.9;
-    break;
+    return s;
   }
-  return s;
+  case SensorModel::kHdl32:
+    // 32 beams 4/3 deg apart over 41 deg, between a VLP-16 and an HDL-64: no
+    // odometry preset was made for such a head.
+    return spinningHead(linearBeams(32, 10.67, -30.67), 2170, 1.0, 100.0, 0.02, 0.01);
+  }
+  return SensorSpec();
 }
 
 Pose3d

@@ -175,11 +175,12 @@ TEST(LidarSimulator, Names)
   for (auto m : {SensorModel::kHdl64,
                  SensorModel::kVlp16,
                  SensorModel::kOs1_64,
-                 SensorModel::kOs0_128})
+                 SensorModel::kOs0_128,
+                 SensorModel::kHdl32})
     EXPECT_EQ(pcl::rast::sensorModelFromString(pcl::rast::toString(m)), m);
   for (auto t : {PathType::kStraight, PathType::kLoop, PathType::kFigureEight})
     EXPECT_EQ(pcl::rast::pathTypeFromString(pcl::rast::toString(t)), t);
-  EXPECT_THROW(pcl::rast::sensorModelFromString("hdl32"), std::invalid_argument);
+  EXPECT_THROW(pcl::rast::sensorModelFromString("vlp32"), std::invalid_argument);
   EXPECT_THROW(pcl::rast::pathTypeFromString("circle"), std::invalid_argument);
 }
 
@@ -191,6 +192,14 @@ TEST(LidarSimulator, SensorSpecs)
   EXPECT_NEAR(hdl.beam_elevations_rad.back() * 180 / M_PI, -24.8, 1e-9);
   EXPECT_EQ(pcl::rast::sensorSpec(SensorModel::kVlp16).beam_elevations_rad.size(), 16u);
   EXPECT_EQ(pcl::rast::sensorSpec(SensorModel::kOs1_64).azimuth_steps, 1024);
+  const auto hdl32 = pcl::rast::sensorSpec(SensorModel::kHdl32);
+  ASSERT_EQ(hdl32.beam_elevations_rad.size(), 32u);
+  EXPECT_NEAR(hdl32.beam_elevations_rad.front() * 180 / M_PI, 10.67, 1e-9);
+  EXPECT_NEAR(hdl32.beam_elevations_rad.back() * 180 / M_PI, -30.67, 1e-9);
+  EXPECT_NEAR((hdl32.beam_elevations_rad[0] - hdl32.beam_elevations_rad[1]) * 180 / M_PI,
+              (10.67 + 30.67) / 31,
+              1e-9); // about 4/3 deg
+  EXPECT_FALSE(hdl32.handheld);
   const auto os0 = pcl::rast::sensorSpec(SensorModel::kOs0_128);
   EXPECT_EQ(os0.beam_elevations_rad.size(), 128u);
   EXPECT_TRUE(os0.handheld);
@@ -289,11 +298,13 @@ TEST(LidarSimulator, PointCountsAndRanges)
     SensorModel model;
     std::size_t min_points, max_points;
   };
-  // Rays per frame: HDL-64 128000, VLP-16 28800, OS1-64 65536, OS0-128 131072.
+  // Rays per frame: HDL-64 128000, VLP-16 28800, OS1-64 65536, OS0-128 131072,
+  // HDL-32E 69440.
   const Case cases[] = {{SensorModel::kHdl64, 60000, 128000},
                         {SensorModel::kVlp16, 10000, 28800},
                         {SensorModel::kOs1_64, 25000, 65536},
-                        {SensorModel::kOs0_128, 60000, 131072}};
+                        {SensorModel::kOs0_128, 60000, 131072},
+                        {SensorModel::kHdl32, 25000, 69440}};
   for (const auto& c : cases) {
     SCOPED_TRACE(pcl::rast::toString(c.model));
     const auto spec = pcl::rast::sensorSpec(c.model);

@@ -116,7 +116,10 @@ TEST(SensorPreset, GuessesTheSimulatedSensors)
   } cases[] = {{SensorModel::kHdl64, SensorPreset::kHdl64},
                {SensorModel::kVlp16, SensorPreset::kVlp16},
                {SensorModel::kOs1_64, SensorPreset::kHdl64}, // same settings
-               {SensorModel::kOs0_128, SensorPreset::kOs0_128}};
+               {SensorModel::kOs0_128, SensorPreset::kOs0_128},
+               // 32 beams 1.33 deg apart: the car-mounted defaults (doc/odometry.md,
+               // "A 32-beam sensor").
+               {SensorModel::kHdl32, SensorPreset::kHdl64}};
   for (const auto& c : cases) {
     const SensorGuess guess = guessSensorPreset(simulatedScan(c.model));
     EXPECT_EQ(guess.preset, c.expected)

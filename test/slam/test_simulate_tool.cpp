@@ -126,7 +126,7 @@ TEST_F(SimulateTool, BadArgumentsExitOne)
   EXPECT_EQ(runSimulate("-frames 3" + o, log_), 1);              // neither
   EXPECT_EQ(runSimulate("-path loop -traj x.txt" + o, log_), 1); // both
   EXPECT_EQ(runSimulate("-path circle" + o, log_), 1);           // bad choice
-  EXPECT_EQ(runSimulate("-path loop -sensor hdl32" + o, log_), 1);
+  EXPECT_EQ(runSimulate("-path loop -sensor vlp32" + o, log_), 1);
   EXPECT_EQ(runSimulate("-path loop -format ply" + o, log_), 1);
   EXPECT_EQ(runSimulate("-path loop -frames 5 -first 3 -last 1" + o, log_), 1);
   EXPECT_EQ(runSimulate("-path loop -frames 5 -last 5" + o, log_), 1);

@@ -56,10 +56,11 @@ namespace rast {
 /// \brief The simulated sensors.
 enum class SensorModel
 {
-  kHdl64,  ///< Velodyne HDL-64E as on KITTI: 64 beams +2..-24.8 deg, 2000 steps, 120 m
-  kVlp16,  ///< Velodyne VLP-16: 16 beams +-15 deg, 0.2 deg steps, 100 m
-  kOs1_64, ///< Ouster OS1-64: 64 beams +-16.6 deg, 1024 steps, 120 m
-  kOs0_128 ///< handheld Ouster OS0-128: 128 beams +-45 deg, 1024 steps, 50 m, tilted
+  kHdl64,   ///< Velodyne HDL-64E as on KITTI: 64 beams +2..-24.8 deg, 2000 steps, 120 m
+  kVlp16,   ///< Velodyne VLP-16: 16 beams +-15 deg, 0.2 deg steps, 100 m
+  kOs1_64,  ///< Ouster OS1-64: 64 beams +-16.6 deg, 1024 steps, 120 m
+  kOs0_128, ///< handheld Ouster OS0-128: 128 beams +-45 deg, 1024 steps, 50 m, tilted
+  kHdl32    ///< Velodyne HDL-32E: 32 beams +10.67..-30.67 deg, 2170 steps, 100 m
 };
 
 /// \brief Built-in generated paths.
