@@ -17,7 +17,8 @@
 #   below 100 are for tuning: never report on them). -c: the clean world instead
 #   (instantaneous scans, no traffic, .bin, seed 1, the clean suburb: the figures of
 #   earlier sessions). -e 5 takes every 5th scan (2 Hz); -S os0-128 simulates the
-#   tilted handheld sensor (and passes -sensor os0-128 to the odometry). Prints the
+#   tilted handheld sensor (and passes -sensor os0-128 to the odometry); -S hdl32, a
+#   sensor with no preset of its own, leaves the preset to the odometry's guess. Prints the
 #   settings, one table row per sequence (with the largest per-frame error of the
 #   relative motion, "max_jump_m"), and writes OUT_DIR/summary.tsv. Every figure it
 #   prints is simulated.
@@ -70,7 +71,13 @@ if (( ! clean )); then
   world+=(-scene mixed -rough-ground -porous-vegetation)
   settings="$settings; world: mixed scenes, rough ground, porous vegetation"
 fi
-echo "eval_odometry (simulated): $settings; sensor $sensor; frames $first+$frames every $every;" \
+# The odometry takes the simulated sensor's preset; a sensor without one (hdl32) is
+# guessed from its first scan, as a user's would be.
+case "$sensor" in
+  hdl64|vlp16|os1-64|os0-128) preset="$sensor" ;;
+  *) preset=auto ;;
+esac
+echo "eval_odometry (simulated): $settings; sensor $sensor (odometry preset $preset); frames $first+$frames every $every;" \
      "odometry flags: ${*:-none}"
 mkdir -p "$out"
 summary="$out/summary.tsv"
@@ -87,7 +94,7 @@ for seq in $seqs; do
   rm -rf "$sim" "$res"
   "$build/tools/pcl_rast_simulate" -traj "$traj" -first "$first" -last "$last" -every "$every" \
     -sensor "$sensor" "${world[@]}" -output "$sim" 2> "$out/simulate_${seq}.log"
-  "$build/tools/pcl_rast_odometry" -input "$sim" -output "$res" -sensor "$sensor" \
+  "$build/tools/pcl_rast_odometry" -input "$sim" -output "$res" -sensor "$preset" \
     ${odometry_flags[@]+"${odometry_flags[@]}"} 2> "$out/odometry_${seq}.log"
   "$build/tools/pcl_rast_eval" "$res/poses_kitti.txt" "$sim/poses.txt" -json \
     > "$out/eval_${seq}.json" 2> /dev/null
