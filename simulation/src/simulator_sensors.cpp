@@ -2,11 +2,12 @@
 /// \brief The simulated sensors (HDL-64, VLP-16, OS1-64, OS0-128 handheld, HDL-32E): beam
 /// layouts, ranges, noise, mounting and motion, and their names.
 
+#include <pcl/simulation/lidar_simulator.h>
+
 #include "simulator_hash.h"
 
 #include <algorithm>
 #include <cmath>
-#include <pcl/simulation/lidar_simulator.h>
 #include <stdexcept>
 #include <utility>
 
