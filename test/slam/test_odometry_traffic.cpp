@@ -338,8 +338,8 @@ TEST(OdometryTraffic, AVlp16StartingAtSpeedInAStreetTakesItsWeakFeatures)
 
 TEST(OdometryTraffic, A32BeamSensorTracksWithTheGuessedPreset)
 {
-  // A Velodyne HDL-32E, for which no preset was made: 32 beams 1.33 deg apart, a
-  // quarter of an HDL-64's points and twice a VLP-16's. The preset is guessed from the
+  // A Velodyne HDL-32E, for which no preset was made: 32 beams 1.33 deg apart, about
+  // half an HDL-64's points and 2.6 times a VLP-16's. The preset is guessed from the
   // first scan, as pcl_rast_odometry -sensor auto does: the car-mounted defaults. Tuning
   // seed 42's world of KITTI 00, its first 80 frames (a street at up to 8.5 m/s).
   PCL_RAST_REQUIRE_SHARED_DATA(data);
