@@ -60,18 +60,18 @@ spinningHead(std::vector<double> beam_elevations_rad,
 SensorModel
 sensorModelFromString(const std::string& name)
 {
-  if (name == "hdl64")
-    return SensorModel::kHdl64;
-  if (name == "vlp16")
-    return SensorModel::kVlp16;
-  if (name == "os1-64")
-    return SensorModel::kOs1_64;
-  if (name == "os0-128")
-    return SensorModel::kOs0_128;
-  if (name == "hdl32")
-    return SensorModel::kHdl32;
-  throw std::invalid_argument("sensorModelFromString: unknown sensor '" + name +
-                              "' (hdl64, vlp16, os1-64, os0-128, hdl32)");
+  std::string known;
+  for (const SensorModel model : {SensorModel::kHdl64,
+                                  SensorModel::kVlp16,
+                                  SensorModel::kOs1_64,
+                                  SensorModel::kOs0_128,
+                                  SensorModel::kHdl32}) {
+    if (name == toString(model))
+      return model;
+    known += (known.empty() ? "" : ", ") + toString(model);
+  }
+  throw std::invalid_argument("sensorModelFromString: unknown sensor '" + name + "' (" +
+                              known + ")");
 }
 
 std::string

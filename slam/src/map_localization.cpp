@@ -55,7 +55,7 @@ applySensorPreset(SensorPreset preset, MapLocalizationParams& params)
     // within a few frames (tuning seed 42: 0.03-0.15 m a frame at 1.07 m/frame).
     params.alignment.degeneracy_min_ratio = 0.002;
     // Converged at a millimetre and 0.1 mrad, as the odometry's dense step, instead of
-    // 0.1 mm: 7.3 instead of 10.5 iterations a frame, 4-6 % more frames a second on the
+    // 0.1 mm: 7.3 instead of 10.5 iterations a frame, 5-9 % more frames a second on the
     // map, the same poses to the millimetre on four simulated worlds. An HDL-64's
     // alignment lost 2 of 615 mapped-road frames with it (doc/session.md, "Session 54").
     params.alignment.convergence_translation_m = 1e-3;
