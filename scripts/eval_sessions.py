@@ -467,6 +467,7 @@ def cold_starts(a, out, sim, session, gt, n, on_map, tool, truth):
                                min(a.cold_starts, len(on_map))))
     ok = bad = bad_gt = 0
     times_s = []
+    missed, wrong = [], []
     for f in starts:
         d = os.path.join(out, "cold", str(f))
         tool("pcl_rast_localize", ["-session", session, "-input", sim, "-first", str(f), "-last",
@@ -476,6 +477,7 @@ def cold_starts(a, out, sim, session, gt, n, on_map, tool, truth):
         cr = statuses(os.path.join(d, "status.csv"))
         first = next((j for j, r in enumerate(cr) if localized_online(r)), None)
         if first is None:
+            missed.append(f)
             continue
         e_gt = dist(position(cp[first]), position(gt[f + first * a.stride]))
         e = truth.error(f + first * a.stride, cp[first])
@@ -483,6 +485,7 @@ def cold_starts(a, out, sim, session, gt, n, on_map, tool, truth):
         bad_gt += e_gt > 2.0
         if e is None or e > 2.0:
             bad += 1
+            wrong.append("%d (%s m)" % (f, "?" if e is None else "%.1f" % e))
         else:
             ok += 1
     print("\ncold start on %d random frames on mapped roads: %d localized within 3 scans, %d "
@@ -490,6 +493,8 @@ def cold_starts(a, out, sim, session, gt, n, on_map, tool, truth):
           "truth, which includes the map's drift); time to the placement %s s (median)"
           % (len(starts), ok, bad, bad_gt,
              "%.2f" % sorted(times_s)[len(times_s) // 2] if times_s else "-"))
+    print("  not localized: %s; wrong: %s" % (", ".join(map(str, missed)) or "none",
+                                            ", ".join(wrong) or "none"))
 
 
 if __name__ == "__main__":

@@ -226,6 +226,12 @@ run(int argc, char** argv)
       "first attempts (0: none; default: the preset's, and 2 in the first 5 attempts)",
       &place_neighbours);
 
+  int place_polar = localizer_defaults.polar_candidates;
+  args.addInt("place-polar",
+              "placement: in a start's or relocalization's first attempts, key-frames "
+              "nearest by the polar max-height descriptor verified too (0: none)",
+              &place_polar);
+
   int dense_points = localizer_defaults.odometry.dense.max_source_points;
   args.addInt(
       "dense-points",
@@ -295,6 +301,9 @@ run(int argc, char** argv)
   if (place_neighbours < 0)
     throw std::invalid_argument("bad -place-neighbours " +
                                 std::to_string(place_neighbours) + " (>= 0)");
+  if (place_polar < 0)
+    throw std::invalid_argument("bad -place-polar " + std::to_string(place_polar) +
+                                " (>= 0)");
   if (dense_points < 10)
     throw std::invalid_argument("bad -dense-points " + std::to_string(dense_points) +
                                 " (>= 10)");
@@ -347,6 +356,7 @@ run(int argc, char** argv)
     localizer_params.neighbourhood_keyframes = place_neighbours;
     params.first_attempts_neighbourhood_keyframes = place_neighbours;
   }
+  localizer_params.polar_candidates = place_polar;
   localizer_params.odometry.dense.max_source_points = dense_points;
   std::string deskew_reason, deskew_timing;
   applyDeskewFlags(deskew, reader, static_cast<std::size_t>(stride),
@@ -546,6 +556,7 @@ run(int argc, char** argv)
       {"first_attempts", params.first_attempts},
       {"first_attempts_neighbourhood_keyframes",
        params.first_attempts_neighbourhood_keyframes},
+      {"polar_candidates", localizer_params.polar_candidates},
       {"track_on_map", params.track_on_map},
       {"backoff_after", params.placement_backoff_after},
       {"every", params.placement_every},

@@ -1479,8 +1479,11 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
   // doc/session.md, session 47).
   PlacementOptions options;
   options.neighbourhoods = !far;
-  // A start or a relocalization waits for its first attempts: more neighbours there.
-  if (m.failed_placements < m.params.first_attempts)
+  // A start or a relocalization waits for its first attempts: more neighbours there,
+  // and the key-frames the polar descriptor finds (off the map, later attempts would
+  // only pay for them).
+  options.polar_candidates = m.failed_placements < m.params.first_attempts;
+  if (options.polar_candidates)
     options.min_neighbourhood_keyframes = m.params.first_attempts_neighbourhood_keyframes;
   // Features the odometry did not make (features_on_demand) come from the scan itself.
   const bool no_features = !odo->features || odo->features->empty();

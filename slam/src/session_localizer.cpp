@@ -2,6 +2,7 @@
 /// \brief SessionLocalizer: a scan placed on a session's map by appearance retrieval
 /// and loop verification (session_localizer.h).
 
+#include "polar_descriptor.h"
 #include "stage_util.h"
 
 #include <algorithm>
@@ -48,6 +49,12 @@ SessionLocalizerParams::isValid(std::string* why) const
   if (!(neighbourhood_radius_m > 0.0))
     return fail("neighbourhood_radius_m must be > 0, got " +
                 std::to_string(neighbourhood_radius_m));
+  if (polar_candidates < 0)
+    return fail("polar_candidates must be >= 0, got " + std::to_string(polar_candidates));
+  if (!(polar_guess_radius_m > 0.0) || !(polar_guess_rotation_deg > 0.0))
+    return fail("polar_guess_radius_m and polar_guess_rotation_deg must be > 0, got " +
+                std::to_string(polar_guess_radius_m) + " and " +
+                std::to_string(polar_guess_rotation_deg));
   return true;
 }
 
@@ -82,6 +89,10 @@ struct SessionLocalizer::Impl
   std::unique_ptr<LoopDetector> detector;
   std::size_t indexed = 0;
   std::vector<KeyFrameId> indexed_ids; ///< the key-frames in the detector
+  /// Their polar descriptors, index-aligned with indexed_ids (empty with
+  /// polar_candidates 0).
+  std::vector<slam_detail::PolarDescriptor> polar;
+  slam_detail::PolarDescriptorParams polar_params;
 
   Placement place(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& scan,
                   const PlacementPrior* prior,
@@ -154,6 +165,8 @@ SessionLocalizer::SessionLocalizer(Session session, const SessionLocalizerParams
       continue;
     }
     impl_->detector->addKeyFrame(kf, kf->T_world_keyframe);
+    if (params.polar_candidates > 0)
+      impl_->polar.emplace_back(*kf->cloud, impl_->polar_params);
     if (read_cloud)
       kf->cloud.reset();
     ++impl_->indexed;
@@ -440,18 +453,21 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
     Pose3d guess;
     GuessTolerance tolerance;
     std::string what;
+    bool tentative_only;
   };
   std::vector<Verified> verified;
   bool with_neighbours = false;
   const int neighbours =
       std::max(params.neighbourhood_keyframes, options.min_neighbourhood_keyframes);
   std::vector<KeyFrameId> covered; ///< the key-frames of the neighbourhoods verified
+  // tentative_only: a pass is at most a tentative placement (the polar candidates).
   const auto verify = [&](KeyFrameId id,
                           const Pose3d& guess,
                           const GuessTolerance& tolerance,
-                          const std::string& what) {
+                          const std::string& what,
+                          bool tentative_only) {
     if (!with_neighbours)
-      verified.push_back(Verified{id, guess, tolerance, what});
+      verified.push_back(Verified{id, guess, tolerance, what, tentative_only});
     std::vector<KeyFrameId> members;
     const LoopVerification v =
         with_neighbours
@@ -462,12 +478,13 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
       note(id, v.reason);
       return false;
     }
-    if (v.num_inliers < min_inliers) {
+    if (v.num_inliers < min_inliers || tentative_only) {
       if (!tentative)
         tentative = Tentative{id, v, "tentatively on " + what};
       note(id,
-           "tentative, " + std::to_string(v.num_inliers) + " inliers < " +
-               std::to_string(min_inliers));
+           tentative_only ? "tentative, found by the polar descriptor"
+                          : "tentative, " + std::to_string(v.num_inliers) +
+                                " inliers < " + std::to_string(min_inliers));
       return false;
     }
     p.success = true;
@@ -491,7 +508,8 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
                T_world_kf.inverse() * prior->T_world_lidar,
                GuessTolerance{
                    prior->radius_m, prior->rotation_deg, prior->min_dense_overlap},
-               what)) {
+               what,
+               false)) {
       p.time_ms = watch.getTime();
       return p;
     }
@@ -510,9 +528,41 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
     const std::string what = "key-frame " + std::to_string(id) + " (candidate " +
                              std::to_string(verified_by_appearance) + " of " +
                              std::to_string(p.candidates_retrieved) + ")";
-    if (verify(id, Pose3d::Identity(), GuessTolerance{}, what)) {
+    if (verify(id, Pose3d::Identity(), GuessTolerance{}, what, false)) {
       p.time_ms = watch.getTime();
       return p;
+    }
+  }
+  // Then the key-frames nearest by the polar descriptor, under the guess it gives.
+  if (options.polar_candidates && !polar.empty()) {
+    const slam_detail::PolarDescriptor described(*query.cloud, polar_params);
+    for (const slam_detail::PolarMatch& m : slam_detail::rankByPolarDescriptor(
+             described, polar, static_cast<std::size_t>(params.polar_candidates))) {
+      const KeyFrameId id = indexed_ids[m.index];
+      if (std::find(near.begin(), near.end(), id) != near.end())
+        continue; // verified under the prior already
+      ++p.polar_verified;
+      ++p.candidates_verified;
+      const double yaw = m.yaw_deg / slam_detail::kDegPerRad;
+      Pose3d guess = Pose3d::Identity();
+      guess.linear() =
+          Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+      char what[112];
+      std::snprintf(what,
+                    sizeof what,
+                    "key-frame %u (polar descriptor %.2f, turned %.0f deg)",
+                    static_cast<unsigned>(id),
+                    m.distance,
+                    m.yaw_deg);
+      if (verify(id,
+                 guess,
+                 GuessTolerance{
+                     params.polar_guess_radius_m, params.polar_guess_rotation_deg, -1.0},
+                 what,
+                 true)) {
+        p.time_ms = watch.getTime();
+        return p;
+      }
     }
   }
   // None placed the scan alone: the same candidates again with the key-frames around
@@ -526,7 +576,11 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
       if (std::find(covered.begin(), covered.end(), c.id) != covered.end())
         continue;
       ++p.neighbourhoods_verified;
-      if (verify(c.id, c.guess, c.tolerance, c.what + " with its neighbours")) {
+      if (verify(c.id,
+                 c.guess,
+                 c.tolerance,
+                 c.what + " with its neighbours",
+                 c.tentative_only)) {
         p.time_ms = watch.getTime();
         return p;
       }

@@ -70,12 +70,16 @@ placeAll(const SessionLocalizer& prior,
          int num_threads)
 {
   std::vector<Placement> placements(ids.size());
+  // Appearance alone: most of a drive's key-frames try, and the merge's anchors want
+  // several placements that agree, not every one a placement could find.
+  PlacementOptions options;
+  options.polar_candidates = false;
   std::atomic<std::size_t> next{0};
   const auto work = [&] {
     for (std::size_t i = next++; i < ids.size(); i = next++) {
       const KeyFrame& kf = *drive.keyframes[ids[i]];
       if (kf.cloud) {
-        placements[i] = prior.place(kf);
+        placements[i] = prior.place(kf, nullptr, options);
         continue;
       }
       // A cloud read when it is needed (Session::cloud_source, cloud_files).
@@ -86,7 +90,7 @@ placeAll(const SessionLocalizer& prior,
         placements[i].message = "key-frame " + std::to_string(kf.id) + " has no cloud";
         continue;
       }
-      placements[i] = prior.place(query);
+      placements[i] = prior.place(query, nullptr, options);
     }
   };
   std::vector<std::thread> threads;

@@ -286,14 +286,17 @@ TEST(MapLocalization, TracksASecondPassAndRecoversFromAKidnapping)
         max_error_m);
     EXPECT_GE(localized, 38);
     EXPECT_LT(rmse, 0.10);
-    if (track_on_map)
+    if (track_on_map) {
       EXPECT_LE(odometry_frames, 4) << "the map tracks once two frames are confirmed";
-    else
+    } else {
       EXPECT_EQ(odometry_frames, 40);
-    if (!track_on_map && on_demand)
+    }
+    if (!track_on_map && on_demand) {
       EXPECT_GE(skipped, 25) << "the frames after a confirmed one need no features"; // 29
-    if (!on_demand)
+    }
+    if (!on_demand) {
       EXPECT_EQ(skipped, 0);
+    }
   }
   // Predicting by the map's velocity instead of the odometry, or with the features of
   // every frame, lands on the same poses.
@@ -1128,12 +1131,29 @@ TEST(MapLocalization, FramesBeforeAPlacementAreLocalizedBackwards)
 /// score no key-frame reaches), second-pass scans are placed from a prior 3 m and 5 deg
 /// off, and not from one 60 m off along the loop, where every nearby key-frame is of
 /// another place.
+/// A placement of frame \a i within 0.5 m and 1 degree of \a truth, by what \a by
+/// names in its message; its error raises \a max_error_m.
+void
+expectPlacedRight(const Placement& p,
+                  const Pose3d& truth,
+                  std::size_t i,
+                  const char* by,
+                  double& max_error_m)
+{
+  const double error_m = (p.T_world_lidar.translation() - truth.translation()).norm();
+  max_error_m = std::max(max_error_m, error_m);
+  EXPECT_LT(error_m, 0.5) << "frame " << i << ": " << p.message;
+  EXPECT_LT(rotationErrorDeg(p.T_world_lidar, truth), 1.0) << "frame " << i;
+  EXPECT_NE(p.message.find(by), std::string::npos) << p.message;
+}
+
 TEST(SessionLocalizer, APriorPlacesScansThatAppearanceDoesNotRetrieve)
 {
   const MappedLoop m = mapLoop();
   SessionLocalizerParams params;
   applySensorPreset(SensorPreset::kHdl64, params.odometry);
   params.verification.min_appearance_score = 1000000;
+  params.polar_candidates = 0; // the prior alone (PolarDescriptorPlaces... below)
   SessionLocalizer localizer(loadSession(m.dir.string()), params);
   params.max_prior_candidates = 0;
   SessionLocalizer no_prior(loadSession(m.dir.string()), params);
@@ -1155,12 +1175,7 @@ TEST(SessionLocalizer, APriorPlacesScansThatAppearanceDoesNotRetrieve)
     const Placement p = localizer.place(scan, prior);
     ++tried;
     if (p.success || p.tentative) {
-      const double error_m =
-          (p.T_world_lidar.translation() - m.truth(i).translation()).norm();
-      max_error_m = std::max(max_error_m, error_m);
-      EXPECT_LT(error_m, 0.5) << "frame " << i << ": " << p.message;
-      EXPECT_LT(rotationErrorDeg(p.T_world_lidar, m.truth(i)), 1.0) << "frame " << i;
-      EXPECT_NE(p.message.find("from the prior"), std::string::npos) << p.message;
+      expectPlacedRight(p, m.truth(i), i, "from the prior", max_error_m);
       placed += p.success ? 1 : 0;
       tentative += p.tentative ? 1 : 0;
     }
@@ -1196,6 +1211,62 @@ TEST(SessionLocalizer, APriorPlacesScansThatAppearanceDoesNotRetrieve)
   EXPECT_THROW(localizer.place(simulateFrame(*m.sim, 160), bad), std::invalid_argument);
 }
 
+/// Where the raster features retrieve no key-frame (here: none reaches the appearance
+/// score), the polar max-height descriptor finds the place and the yaw, and the
+/// verification under that guess places the scan tentatively (a second scan must
+/// agree); another world is not placed, and with polar_candidates 0 or
+/// PlacementOptions::polar_candidates false nothing is.
+TEST(SessionLocalizer, APolarDescriptorPlacesScansThatAppearanceDoesNotRetrieve)
+{
+  const MappedLoop m = mapLoop();
+  SessionLocalizerParams params;
+  applySensorPreset(SensorPreset::kHdl64, params.odometry);
+  params.verification.min_appearance_score = 1000000;
+  ASSERT_GT(params.polar_candidates, 0);
+  SessionLocalizer localizer(loadSession(m.dir.string()), params);
+  params.polar_candidates = 0;
+  SessionLocalizer no_polar(loadSession(m.dir.string()), params);
+  PlacementOptions off;
+  off.polar_candidates = false;
+
+  int tentative = 0, tried = 0;
+  double max_error_m = 0.0;
+  for (std::size_t i = 160; i < 200; i += 4) {
+    const CloudPtr scan = simulateFrame(*m.sim, i);
+    ++tried;
+    const Placement p = localizer.place(scan);
+    EXPECT_GT(p.polar_verified, 0) << "frame " << i << ": " << p.message;
+    if (p.success || p.tentative) {
+      expectPlacedRight(p, m.truth(i), i, "polar descriptor", max_error_m);
+      EXPECT_FALSE(p.success) << "a polar candidate places tentatively: " << p.message;
+      tentative += p.tentative ? 1 : 0;
+    }
+    const Placement none = no_polar.place(scan);
+    EXPECT_FALSE(none.success || none.tentative)
+        << "polar_candidates 0: " << none.message;
+    EXPECT_EQ(none.polar_verified, 0);
+    const Placement not_asked = localizer.place(scan, nullptr, off);
+    EXPECT_FALSE(not_asked.success || not_asked.tentative) << not_asked.message;
+    EXPECT_EQ(not_asked.polar_verified, 0);
+  }
+  std::printf(
+      "simulated second pass with appearance retrieval off: %d of %d scans placed "
+      "tentatively by the polar descriptor, largest error %.3f m\n",
+      tentative,
+      tried,
+      max_error_m);
+  EXPECT_GE(tentative, tried - 2);
+
+  // A world that was never mapped: its nearest descriptors are verified and fail.
+  const auto elsewhere = pathSimulator(PathType::kStraight, 40, 0.0, 9);
+  for (std::size_t i = 0; i < 40; i += 4) {
+    const Placement p = localizer.place(simulateFrame(*elsewhere, i));
+    EXPECT_FALSE(p.success || p.tentative)
+        << "frame " << i << " of another world: " << p.message;
+    EXPECT_GT(p.polar_verified, 0);
+  }
+}
+
 /// MapLocalization hands the odometry's dead reckoning to its placements: a second pass
 /// started from a given pose, with the map alignment failing (it asks for more points
 /// than a scan has) and retrieval switched off, only the prior can place the scans; with
@@ -1206,6 +1277,7 @@ TEST(MapLocalization, PlacesFromItsDeadReckoningWhenRetrievalCannot)
   SessionLocalizerParams params;
   applySensorPreset(SensorPreset::kHdl64, params.odometry);
   params.verification.min_appearance_score = 1000000; // retrieval finds nothing
+  params.polar_candidates = 0; // nor the polar descriptor (ColdStartsBy... below)
   const SessionLocalizer localizer(loadSession(m.dir.string()), params);
   for (const double radius : {10.0, 0.0}) {
     MapLocalizationParams lp;
@@ -1245,6 +1317,43 @@ TEST(MapLocalization, PlacesFromItsDeadReckoningWhenRetrievalCannot)
 /// last confirmed motion: on the straight start of the second pass, four skipped frames
 /// stay within centimetres of the truth and the next scan is aligned to the map again.
 /// Before any scan, a skipped one has no pose and says why.
+/// A cold start where appearance retrieval finds nothing: the polar descriptor's
+/// candidates place the first scans tentatively, a second scan agrees (by its own
+/// placement or its alignment), and the run is localized within 3 scans at the right
+/// pose. Without them (polar_candidates 0) it stays lost.
+TEST(MapLocalization, ColdStartsByThePolarDescriptorWhenRetrievalFindsNothing)
+{
+  const MappedLoop m = mapLoop();
+  SessionLocalizerParams params;
+  applySensorPreset(SensorPreset::kHdl64, params.odometry);
+  params.verification.min_appearance_score = 1000000; // retrieval finds nothing
+  const SessionLocalizer localizer(loadSession(m.dir.string()), params);
+  params.polar_candidates = 0;
+  const SessionLocalizer no_polar(loadSession(m.dir.string()), params);
+  for (const std::size_t start : {162u, 176u}) {
+    SCOPED_TRACE(start);
+    MapLocalization localization(localizer, m.odometry);
+    MapLocalization without(no_polar, m.odometry);
+    int first_localized = -1;
+    for (std::size_t i = start; i < start + 6; ++i) {
+      const CloudPtr scan = simulateFrame(*m.sim, i);
+      const LocalizationFrame f = localization.addScan(scan, m.sim->timestamp(i), i);
+      if (f.status == LocalizationStatus::kLocalized) {
+        if (first_localized < 0)
+          first_localized = static_cast<int>(i - start);
+        EXPECT_LT((f.T_world_lidar.translation() - m.truth(i).translation()).norm(), 0.5)
+            << "frame " << i << ": " << f.message;
+        EXPECT_LT(rotationErrorDeg(f.T_world_lidar, m.truth(i)), 1.0) << "frame " << i;
+      }
+      const LocalizationFrame g = without.addScan(scan, m.sim->timestamp(i), i);
+      EXPECT_EQ(g.status, LocalizationStatus::kLost)
+          << "frame " << i << ": " << g.message;
+    }
+    EXPECT_GE(first_localized, 1) << "a polar placement alone is only tentative";
+    EXPECT_LE(first_localized, 2) << "localized within 3 scans";
+  }
+}
+
 TEST(MapLocalization, SkippedScansAreCarriedByTheLastMotion)
 {
   const MappedLoop m = mapLoop();

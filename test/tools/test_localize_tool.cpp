@@ -96,6 +96,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_EQ(summary["placement"]["neighbourhood_keyframes"].get<int>(), 0);
   EXPECT_EQ(summary["placement"]["first_attempts"].get<int>(), 5);
   EXPECT_EQ(summary["placement"]["first_attempts_neighbourhood_keyframes"].get<int>(), 2);
+  EXPECT_EQ(summary["placement"]["polar_candidates"].get<int>(), 3);
   EXPECT_TRUE(summary["placement"]["track_on_map"].get<bool>());
   EXPECT_TRUE(summary["lookahead"]["on"].get<bool>());
   EXPECT_TRUE(summary["odometry_features"]["on_demand"].get<bool>());
@@ -131,7 +132,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
                 " -output " + quoted(out2) +
                 " -first 10 -last 19 -software-render -quiet -no-merged-keyframes "
                 "-place-min-initial 11 -place-min-inliers 38 -place-neighbours 3 "
-                "-initial-pose '" +
+                "-place-polar 1 -initial-pose '" +
                 pose + "'"),
             0)
       << readFile(log_);
@@ -145,6 +146,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_EQ(summary2["placement"]["neighbourhood_keyframes"].get<int>(), 3);
   EXPECT_EQ(summary2["placement"]["first_attempts_neighbourhood_keyframes"].get<int>(), 3)
       << "-place-neighbours sets the first attempts' too";
+  EXPECT_EQ(summary2["placement"]["polar_candidates"].get<int>(), 1);
 
   // Without the odometry's look-ahead, and with every scan's features: the same poses
   // (MapLocalization's own test compares them off the map, where the odometry runs on
@@ -313,6 +315,11 @@ TEST_F(LocalizeTool, BadSessionsAndArgumentsAreRefusedBeforeAnyWork)
                 " -place-neighbours -1"),
             1);
   EXPECT_NE(readFile(log_).find("-place-neighbours -1 (>= 0)"), std::string::npos)
+      << readFile(log_);
+  EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
+                " -place-polar -2"),
+            1);
+  EXPECT_NE(readFile(log_).find("-place-polar -2 (>= 0)"), std::string::npos)
       << readFile(log_);
   EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
                 " -dense-points 5"),
