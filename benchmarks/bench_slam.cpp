@@ -3,20 +3,24 @@
 ///  - BM_LocalBundleAdjustment: one local BA window (8 key-frames, their map points);
 ///  - BM_AppearanceRetrieval: one scan's ORB features ranked by appearance against 900
 ///    key-frames of simulated HDL-64 scans (KeyFrameDatabase, a placement's retrieval);
+///  - BM_PolarDescriptor: one simulated HDL-64 scan described (what indexing a session
+///    costs per key-frame, and a placement per scan), and BM_PolarRanking: a scan's
+///    descriptor ranked against 1600 key-frames' (a placement's polar candidates);
 ///  - BM_Pipeline/threads:{0,1}: RastSlam on 120 simulated HDL-64 scans of a loop drive
 ///    (simulated once, outside the timing), deterministic vs three threads;
 ///    items_per_second is the throughput in frames per second.
 
-#include <benchmark/benchmark.h>
+#include "../slam/src/polar_descriptor.h"
 
+#include <benchmark/benchmark.h>
+#include <cmath>
+#include <memory>
+#include <pcl/common/transforms.h>
 #include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/bundle_adjustment.h>
 #include <pcl/slam/keyframe_database.h>
 #include <pcl/slam/odometry.h>
 #include <pcl/slam/rast_slam.h>
-
-#include <cmath>
-#include <memory>
 #include <random>
 #include <string>
 #include <vector>
@@ -49,8 +53,10 @@ BM_LocalBundleAdjustment(benchmark::State& state)
       if (p.head<2>().norm() > 30.0 || (i + id) % 3 != 0)
         continue;
       base.points[static_cast<MapPointId>(i)] = points[i];
-      base.observations.push_back({id, static_cast<MapPointId>(i),
-                                   p + Eigen::Vector3d(noise(rng), noise(rng), noise(rng))});
+      base.observations.push_back(
+          {id,
+           static_cast<MapPointId>(i),
+           p + Eigen::Vector3d(noise(rng), noise(rng), noise(rng))});
     }
   }
   BundleAdjustmentParams params;
@@ -157,6 +163,50 @@ BM_AppearanceRetrieval(benchmark::State& state)
 }
 BENCHMARK(BM_AppearanceRetrieval)->Unit(benchmark::kMillisecond);
 
+const std::vector<pcl::PointCloud<pcl::PointXYZI>::ConstPtr>& scans();
+
+void
+BM_PolarDescriptor(benchmark::State& state)
+{
+  const auto& cloud = *scans().front();
+  const slam_detail::PolarDescriptorParams params;
+  for (auto _ : state) {
+    const slam_detail::PolarDescriptor d(cloud, params);
+    benchmark::DoNotOptimize(d.bytes());
+  }
+  state.counters["points"] = static_cast<double>(cloud.size());
+}
+BENCHMARK(BM_PolarDescriptor)->Unit(benchmark::kMillisecond);
+
+void
+BM_PolarRanking(benchmark::State& state)
+{
+  // The 120 scans of the loop drive, turned by a different yaw each time round, stand
+  // for the 1600 key-frames of a session.
+  constexpr std::size_t kKeyFrames = 1600;
+  const auto& clouds = scans();
+  const slam_detail::PolarDescriptorParams params;
+  std::vector<slam_detail::PolarDescriptor> map;
+  for (std::size_t i = 0; i < kKeyFrames; ++i) {
+    const Eigen::Affine3f turn(Eigen::AngleAxisf(
+        0.3f * static_cast<float>(i / clouds.size()), Eigen::Vector3f::UnitZ()));
+    pcl::PointCloud<pcl::PointXYZI> turned;
+    pcl::transformPointCloud(*clouds[i % clouds.size()], turned, turn);
+    map.emplace_back(turned, params);
+  }
+  const slam_detail::PolarDescriptor query(*clouds[50], params);
+  for (auto _ : state) {
+    const auto ranked = slam_detail::rankByPolarDescriptor(query, map, 3);
+    if (ranked.empty() || ranked.front().index % clouds.size() != 50) {
+      state.SkipWithError("the query's own scan is not ranked first");
+      break;
+    }
+    benchmark::DoNotOptimize(ranked.data());
+  }
+  state.counters["keyframes"] = static_cast<double>(kKeyFrames);
+}
+BENCHMARK(BM_PolarRanking)->Unit(benchmark::kMillisecond);
+
 const std::vector<pcl::PointCloud<pcl::PointXYZI>::ConstPtr>&
 scans()
 {
@@ -194,7 +244,12 @@ BM_Pipeline(benchmark::State& state)
   }
   state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(clouds.size()));
 }
-BENCHMARK(BM_Pipeline)->ArgName("threads")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->Iterations(2);
+BENCHMARK(BM_Pipeline)
+    ->ArgName("threads")
+    ->Arg(0)
+    ->Arg(1)
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(2);
 
 } // namespace
 
