@@ -494,6 +494,7 @@ run(int argc, char** argv)
     // closure's appearance score (session 21); the localization's lower one is not.
     localizer_params.verification.min_appearance_score =
         rast::LoopDetectorParams().min_appearance_score;
+    localizer_params.polar_candidates = 0; // the merge does not use them: no descriptors
     localizer = std::make_unique<rast::SessionLocalizer>(std::move(*prior), localizer_params);
     prior.reset();
   }

@@ -48,13 +48,14 @@ PolarDescriptor::PolarDescriptor(const pcl::PointCloud<pcl::PointXYZI>& cloud,
   cells_.assign(static_cast<std::size_t>(heights.size()), 0);
   occupied_.assign(static_cast<std::size_t>(sectors_), 0);
   for (int j = 0; j < sectors_; ++j) {
-    const float norm = heights.col(j).norm();
-    if (!(norm > 0.0f))
+    // In double: the squares of heights beyond 1e19 m overflow a float.
+    const double norm = heights.col(j).cast<double>().norm();
+    if (!(norm > 0.0) || !std::isfinite(norm))
       continue;
     occupied_[j] = 1;
     for (int r = 0; r < rings_; ++r)
       cells_[static_cast<std::size_t>(j) * rings_ + r] =
-          static_cast<std::uint8_t>(std::lround(255.0f * heights(r, j) / norm));
+          static_cast<std::uint8_t>(std::lround(255.0 * heights(r, j) / norm));
   }
 }
 

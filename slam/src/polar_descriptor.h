@@ -9,6 +9,7 @@
 /// two scans. Not installed.
 
 #include <Eigen/Core>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <pcl/point_cloud.h>
@@ -32,7 +33,9 @@ struct PolarDescriptorParams
   double height_offset_m = 2.5;
   bool isValid() const
   {
-    return rings >= 1 && sectors >= 3 && max_range_m > 0.0 && height_offset_m >= 0.0;
+    return rings >= 1 && sectors >= 3 && max_range_m > 0.0 &&
+           std::isfinite(max_range_m) && height_offset_m >= 0.0 &&
+           std::isfinite(height_offset_m);
   }
 };
 
@@ -73,17 +76,20 @@ private:
   std::vector<std::uint8_t> occupied_; ///< per sector: the column holds a point
 };
 
-/// \brief The \a count of \a candidates nearest \a query by distance(), nearest first,
-/// with their distance and yaw [deg]; those that share too little with it are left out.
-/// Every candidate is compared: a ring key (the share of each ring's sectors that hold
-/// points, which a turn does not change) kept only the nearest eighth and with it lost
-/// the right key-frame of a simulated VLP-16 scan that the full comparison ranks first.
+/// \brief A candidate of rankByPolarDescriptor().
 struct PolarMatch
 {
-  std::size_t index = 0;
+  std::size_t index = 0; ///< into the candidates
   double distance = 1.0;
   double yaw_deg = 0.0;
 };
+
+/// \brief The \a count of \a candidates nearest \a query by distance(), nearest first,
+/// with their distance and yaw [deg]; those at distance 1 (sharing too little with it,
+/// or unrelated) are left out. Every candidate is compared: a ring key (the share of
+/// each ring's sectors that hold points, which a turn does not change) kept only the
+/// nearest eighth and with it lost the right key-frame of a simulated VLP-16 scan that
+/// the full comparison ranks first.
 std::vector<PolarMatch>
 rankByPolarDescriptor(const PolarDescriptor& query,
                       const std::vector<PolarDescriptor>& candidates,

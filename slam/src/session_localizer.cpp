@@ -534,7 +534,8 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
     }
   }
   // Then the key-frames nearest by the polar descriptor, under the guess it gives.
-  if (options.polar_candidates && !polar.empty()) {
+  // They make tentative placements only: none where those are switched off.
+  if (options.polar_candidates && !polar.empty() && params.tentative_min_inliers > 0) {
     const slam_detail::PolarDescriptor described(*query.cloud, polar_params);
     for (const slam_detail::PolarMatch& m : slam_detail::rankByPolarDescriptor(
              described, polar, static_cast<std::size_t>(params.polar_candidates))) {
@@ -592,9 +593,11 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
     p.time_ms = watch.getTime();
     return p;
   }
-  if (ranking.empty() && near.empty())
+  if (p.candidates_verified > 0)
+    p.message = "no candidate verified (" + reasons + ")";
+  else if (ranking.empty())
     p.message = "no key-frame of the map shares its appearance";
-  else if (p.candidates_verified == 0)
+  else
     p.message = "no key-frame's appearance score reaches " +
                 std::to_string(params.verification.min_appearance_score) + " (best " +
                 std::to_string(std::max_element(ranking.begin(),
@@ -604,8 +607,6 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
                                                 })
                                    ->second) +
                 ")";
-  else
-    p.message = "no candidate verified (" + reasons + ")";
   p.time_ms = watch.getTime();
   return p;
 }

@@ -8,6 +8,7 @@
 #include <Eigen/Geometry>
 #include <cmath>
 #include <gtest/gtest.h>
+#include <limits>
 #include <random>
 #include <stdexcept>
 #include <string>
@@ -138,6 +139,34 @@ TEST(PolarDescriptor, InvalidShapeIsRejectedByName)
   } catch (const std::invalid_argument& e) {
     EXPECT_NE(std::string(e.what()).find("sectors"), std::string::npos) << e.what();
   }
+  params = PolarDescriptorParams();
+  params.height_offset_m = std::numeric_limits<double>::infinity();
+  EXPECT_THROW(PolarDescriptor(place(1), params), std::invalid_argument);
+}
+
+TEST(PolarDescriptor, LyingPointsDoNotSpoilTheRest)
+{
+  const PolarDescriptorParams params;
+  const Cloud scan = place(5);
+  Cloud lying = scan;
+  pcl::PointXYZI p;
+  p.intensity = 0.0f;
+  // A point far up in a sector of its own, points with no value, one on the range's edge
+  // and one whose azimuth rounds to 360 deg.
+  for (const Eigen::Vector3f& v :
+       {Eigen::Vector3f(-20.0f, -1e-7f, 3e30f),
+        Eigen::Vector3f(std::nanf(""), 1.0f, 1.0f),
+        Eigen::Vector3f(1.0f, std::numeric_limits<float>::infinity(), 1.0f),
+        Eigen::Vector3f(60.0f, 0.0f, 1.0f),
+        Eigen::Vector3f(10.0f, -1e-9f, 1.0f)}) {
+    p.getVector3fMap() = v;
+    lying.push_back(p);
+  }
+  const PolarDescriptor clean(scan, params), spoilt(lying, params);
+  const auto [d, shift] = spoilt.distance(clean);
+  EXPECT_LT(d, 0.05);
+  EXPECT_EQ(shift, 0);
+  EXPECT_TRUE(std::isfinite(d));
 }
 
 } // namespace test_polar_descriptor

@@ -1257,6 +1257,28 @@ TEST(SessionLocalizer, APolarDescriptorPlacesScansThatAppearanceDoesNotRetrieve)
       max_error_m);
   EXPECT_GE(tentative, tried - 2);
 
+  // A sensor turned far from the map's heading: the descriptors' yaw turns the guess.
+  // The cloud turned by R is seen from a LiDAR frame turned by R's inverse.
+  for (const double yaw_deg : {100.0, -150.0}) {
+    const Pose3d R(Eigen::AngleAxisd(yaw_deg * M_PI / 180.0, Eigen::Vector3d::UnitZ()));
+    auto turned =
+        std::make_shared<pcl::PointCloud<pcl::PointXYZI>>(*simulateFrame(*m.sim, 172));
+    for (pcl::PointXYZI& q : turned->points)
+      q.getVector3fMap() = (R * q.getVector3fMap().cast<double>()).cast<float>();
+    const Placement p = localizer.place(turned);
+    ASSERT_TRUE(p.tentative) << "turned by " << yaw_deg << " deg: " << p.message;
+    expectPlacedRight(
+        p, m.truth(172) * R.inverse(), 172, "polar descriptor", max_error_m);
+  }
+
+  // Where tentative placements are switched off, polar candidates are too.
+  params.polar_candidates = 3;
+  params.tentative_min_inliers = 0;
+  SessionLocalizer no_tentative(loadSession(m.dir.string()), params);
+  const Placement none = no_tentative.place(simulateFrame(*m.sim, 172));
+  EXPECT_FALSE(none.success || none.tentative) << none.message;
+  EXPECT_EQ(none.polar_verified, 0);
+
   // A world that was never mapped: its nearest descriptors are verified and fail.
   const auto elsewhere = pathSimulator(PathType::kStraight, 40, 0.0, 9);
   for (std::size_t i = 0; i < 40; i += 4) {

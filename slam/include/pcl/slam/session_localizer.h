@@ -52,12 +52,14 @@ struct SessionLocalizerParams
     p.min_appearance_score = 15;
     return p;
   }();
-  /// Key-frames verified per scan, best appearance first (>= 1).
+  /// Key-frames retrieved by appearance verified per scan, best first (>= 1); the
+  /// prior's and the polar descriptor's candidates come on top.
   int max_candidates = 6;
   /// A candidate that passes every check with fewer guided inliers than
   /// verification.min_inliers, but at least this many, makes a tentative placement
   /// (Placement::tentative): not a placement by itself, one when the tentative
-  /// placement of another scan agrees with it (MapLocalization). 0: none.
+  /// placement of another scan agrees with it (MapLocalization). 0: none (and no polar
+  /// candidates, which make tentative placements only).
   int tentative_min_inliers = 20;
   /// With a PlacementPrior: the key-frames nearest the prior (within its radius) verified
   /// first, under the prior as the guess and whatever their appearance score, as the
@@ -87,8 +89,8 @@ struct SessionLocalizerParams
   /// map's pose of the place, where the next scan's placement was 3.7 m from it. A
   /// second scan must agree (MapLocalization). 0: none (no descriptors are kept).
   int polar_candidates = 3;
-  double polar_guess_radius_m = 6.0;
-  double polar_guess_rotation_deg = 12.0;
+  double polar_guess_radius_m = 6.0;      ///< (> 0)
+  double polar_guess_rotation_deg = 12.0; ///< (> 0)
   /// \brief Whether all values are usable; on failure \a why (if not null) says which.
   bool isValid(std::string* why = nullptr) const;
 };
@@ -144,8 +146,9 @@ struct Placement
   /// Placed: a candidate passed every check with the full thresholds.
   bool success = false;
   /// Not placed, but a candidate passed every check with at least
-  /// tentative_min_inliers guided inliers: the pose fields below are filled in, for a
-  /// caller that accepts it once another scan's placement agrees with it.
+  /// tentative_min_inliers guided inliers, or a polar candidate passed them
+  /// (SessionLocalizerParams::polar_candidates): the pose fields below are filled in,
+  /// for a caller that accepts it once another scan's placement agrees with it.
   bool tentative = false;
   /// Pose of the scan's LiDAR frame in the session's world frame (when success).
   Pose3d T_world_lidar = Pose3d::Identity();
@@ -155,7 +158,9 @@ struct Placement
   double dense_rmse_m = 0.0;
   int num_features = 0;         ///< ORB features of the scan
   int candidates_retrieved = 0; ///< key-frames that shared appearance with it
-  int candidates_verified = 0;  ///< of which verified before one passed (or all failed)
+  /// key-frames verified before one passed (or all failed): near the prior, retrieved,
+  /// found by the polar descriptor
+  int candidates_verified = 0;
   /// of which verified again with their neighbourhoods (neighbourhood_keyframes)
   int neighbourhoods_verified = 0;
   /// key-frames verified because their polar descriptor is near the scan's
