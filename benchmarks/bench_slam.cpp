@@ -13,14 +13,16 @@
 #include "../slam/src/polar_descriptor.h"
 
 #include <benchmark/benchmark.h>
-#include <cmath>
-#include <memory>
+
 #include <pcl/common/transforms.h>
 #include <pcl/simulation/lidar_simulator.h>
 #include <pcl/slam/bundle_adjustment.h>
 #include <pcl/slam/keyframe_database.h>
 #include <pcl/slam/odometry.h>
 #include <pcl/slam/rast_slam.h>
+
+#include <cmath>
+#include <memory>
 #include <random>
 #include <string>
 #include <vector>
@@ -53,10 +55,8 @@ BM_LocalBundleAdjustment(benchmark::State& state)
       if (p.head<2>().norm() > 30.0 || (i + id) % 3 != 0)
         continue;
       base.points[static_cast<MapPointId>(i)] = points[i];
-      base.observations.push_back(
-          {id,
-           static_cast<MapPointId>(i),
-           p + Eigen::Vector3d(noise(rng), noise(rng), noise(rng))});
+      base.observations.push_back({id, static_cast<MapPointId>(i),
+                                   p + Eigen::Vector3d(noise(rng), noise(rng), noise(rng))});
     }
   }
   BundleAdjustmentParams params;
@@ -244,12 +244,7 @@ BM_Pipeline(benchmark::State& state)
   }
   state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(clouds.size()));
 }
-BENCHMARK(BM_Pipeline)
-    ->ArgName("threads")
-    ->Arg(0)
-    ->Arg(1)
-    ->Unit(benchmark::kMillisecond)
-    ->Iterations(2);
+BENCHMARK(BM_Pipeline)->ArgName("threads")->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->Iterations(2);
 
 } // namespace
 

@@ -89,8 +89,9 @@ struct SessionLocalizer::Impl
   std::unique_ptr<LoopDetector> detector;
   std::size_t indexed = 0;
   std::vector<KeyFrameId> indexed_ids; ///< the key-frames in the detector
-  /// Their polar descriptors, index-aligned with indexed_ids (empty with
-  /// polar_candidates 0).
+  /// Their polar descriptors, index-aligned with indexed_ids; empty where there are no
+  /// polar candidates (polar_candidates 0, or tentative_min_inliers 0: they make
+  /// tentative placements only).
   std::vector<slam_detail::PolarDescriptor> polar;
   slam_detail::PolarDescriptorParams polar_params;
 
@@ -165,7 +166,7 @@ SessionLocalizer::SessionLocalizer(Session session, const SessionLocalizerParams
       continue;
     }
     impl_->detector->addKeyFrame(kf, kf->T_world_keyframe);
-    if (params.polar_candidates > 0)
+    if (params.polar_candidates > 0 && params.tentative_min_inliers > 0)
       impl_->polar.emplace_back(*kf->cloud, impl_->polar_params);
     if (read_cloud)
       kf->cloud.reset();
@@ -534,8 +535,7 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
     }
   }
   // Then the key-frames nearest by the polar descriptor, under the guess it gives.
-  // They make tentative placements only: none where those are switched off.
-  if (options.polar_candidates && !polar.empty() && params.tentative_min_inliers > 0) {
+  if (options.polar_candidates && !polar.empty()) {
     const slam_detail::PolarDescriptor described(*query.cloud, polar_params);
     for (const slam_detail::PolarMatch& m : slam_detail::rankByPolarDescriptor(
              described, polar, static_cast<std::size_t>(params.polar_candidates))) {
