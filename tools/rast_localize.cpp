@@ -163,10 +163,13 @@ run(int argc, char** argv)
   args.addInt("max-tracking-only",
               "frames the odometry may carry the pose alone before the run counts as lost",
               &params.max_tracking_only_frames);
+  args.addInt("place-backoff",
+              "failed placements in a row (off the map) after which they back off "
+              "(0: never)",
+              &params.placement_backoff_after);
   args.addInt("place-every",
-              "after " + std::to_string(params.placement_backoff_after) +
-                  " failed placements in a row (off the map), try one every N frames "
-                  "(1: every frame)",
+              "after -place-backoff failed placements in a row, try one every N frames "
+              "(1: every frame)",
               &params.placement_every);
   args.addDouble(
       "prior-radius",
@@ -256,6 +259,12 @@ run(int argc, char** argv)
                  "a scan that aligns to none of the nearest key-frames alone is not "
                  "aligned to their clouds together (as it is within 10 m of them)",
                  &no_merged_keyframes);
+  bool no_tracked_together = false;
+  args.addSwitch(
+      "no-tracked-together",
+      "a tracked frame that no nearest key-frame confirms alone is not aligned "
+      "to their clouds together (only a tentative placement's next scan is)",
+      &no_tracked_together);
   bool no_lookahead = false;
   args.addSwitch(
       "no-lookahead",
@@ -284,6 +293,7 @@ run(int argc, char** argv)
   params.degenerate_needs_tracked_odometry = !trust_degraded_odometry;
   if (no_merged_keyframes)
     params.merged_keyframes_within_m = 0.0;
+  params.tracked_together = !no_tracked_together;
 
   // ---- validate everything before any work ----
   if (first < 0 || stride < 1 || last < -1 || (last >= 0 && last < first))
@@ -571,6 +581,8 @@ run(int argc, char** argv)
       {"tried", placements_tried}};
   summary["map_alignment"] = {
       {"merged_keyframes_within_m", params.merged_keyframes_within_m},
+      {"tracked_together", params.tracked_together},
+      {"tracked_together_min_overlap", params.tracked_together_min_overlap},
       {"target_voxel_m", params.alignment.target_voxel_size_m}, // the sensor preset's
       {"degeneracy_min_ratio", params.alignment.degeneracy_min_ratio},
       {"degenerate_needs_tracked_odometry", params.degenerate_needs_tracked_odometry}};

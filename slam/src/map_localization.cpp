@@ -95,6 +95,9 @@ MapLocalizationParams::isValid(std::string* why) const
   if (!(merged_keyframes_within_m >= 0.0))
     return fail("merged_keyframes_within_m must be >= 0, got " +
                 std::to_string(merged_keyframes_within_m));
+  if (!(tracked_together_min_overlap > 0.0 && tracked_together_min_overlap <= 1.0))
+    return fail("tracked_together_min_overlap must be in (0, 1], got " +
+                std::to_string(tracked_together_min_overlap));
   if (map_keyframes < 1)
     return fail("map_keyframes must be >= 1, got " + std::to_string(map_keyframes));
   if (!alignment.isValid(&sub))
@@ -229,6 +232,8 @@ struct MapLocalization::Impl
     /// Directions the scan did not constrain, kept at the prediction
     /// (PointToPlaneParams::degeneracy_min_ratio).
     int degenerate_directions = 0;
+    bool together = false; ///< to several key-frames' clouds together (alignToMerged())
+    double overlap = 0.0;  ///< the share of the source points paired
   };
 
   /// A scan prepared for the map alignment: its voxel planes (prepareSource()) from
@@ -279,6 +284,8 @@ struct MapLocalization::Impl
   /// The motion per second between the last two frames, when the map confirmed both.
   std::optional<Twist> map_velocity;
   bool previous_confirmed = false; ///< the map confirmed the last frame
+  /// ... by the clouds of the nearest key-frames together (alignTracked())
+  bool previous_together = false;
   std::size_t frames = 0;          ///< scans and skipped scans so far
   int odometry_run = 0;            ///< counts the odometry's (re)starts
   /// The last placement (tentative or full) with the odometry's pose of its scan, for a
@@ -889,6 +896,61 @@ struct MapLocalization::Impl
     return std::nullopt;
   }
 
+  /// A frame predicted from a frame the map confirmed (else from the odometry alone):
+  /// aligned to the nearest key-frames one by one (alignToMap()), and when none
+  /// confirms it, to their clouds together (tracked_together), where a drive at
+  /// the map's edge or on the other side of a road pairs too little with any one.
+  /// Together first while the last frame needed it.
+  std::optional<Alignment> alignTracked(const std::function<const Source&()>& scan,
+                                        const Pose3d& predicted,
+                                        std::string& why)
+  {
+    const bool together = params.tracked_together && previous_confirmed;
+    std::optional<Alignment> a;
+    std::string why_not_together; // "; ..." when the clouds together did not confirm it
+    if (together && previous_together)
+      a = alignTrackedTogether(scan, predicted, why_not_together);
+    if (!a)
+      a = alignToMap(scan, predicted, why);
+    if (!a && together && !previous_together)
+      a = alignTrackedTogether(scan, predicted, why_not_together);
+    if (!a)
+      why += why_not_together;
+    previous_together = a && a->together;
+    return a;
+  }
+
+  /// The clouds together pair with any street that looks alike far more than one
+  /// key-frame's does (a simulated straight street of another world: 40-44 % of its
+  /// points), so a tracked frame aligned to them must pair at least
+  /// tracked_together_min_overlap of its points, and constrain every direction itself.
+  std::optional<Alignment>
+  alignTrackedTogether(const std::function<const Source&()>& scan,
+                       const Pose3d& predicted,
+                       std::string& why)
+  {
+    std::optional<Alignment> a = alignToNearestTogether(scan, predicted, why);
+    if (!a)
+      return a;
+    char text[160];
+    if (a->overlap < params.tracked_together_min_overlap) {
+      std::snprintf(text,
+                    sizeof text,
+                    "; %s: %.0f %% of the source points paired, %.0f %% asked of a "
+                    "tracked frame",
+                    a->target.c_str(),
+                    100.0 * a->overlap,
+                    100.0 * params.tracked_together_min_overlap);
+      why += text;
+      a.reset();
+    } else if (a->degenerate_directions > 0) {
+      why += "; " + a->target + ": " + std::to_string(a->degenerate_directions) +
+             " direction(s) the scan does not constrain";
+      a.reset();
+    }
+    return a;
+  }
+
   /// Where the prediction is no measurement of its own (moved back from a placement, or
   /// a tentative placement moved on by the odometry), it cannot stand for a direction
   /// the scan does not constrain: such an alignment is refused, and \a why says so.
@@ -946,6 +1008,9 @@ struct MapLocalization::Impl
     a.rmse_m = r.rmse_m;
     a.target = std::move(target);
     a.degenerate_directions = r.degenerate_directions;
+    a.overlap = r.num_source_points > 0
+                    ? static_cast<double>(r.num_correspondences) / r.num_source_points
+                    : 0.0;
     return a;
   }
 
@@ -1030,7 +1095,9 @@ struct MapLocalization::Impl
     std::string why_not;
     std::optional<Alignment> a =
         confirmed(r, Pose3d::Identity(), near.front()->id, std::move(which), why_not);
-    if (!a)
+    if (a)
+      a->together = true;
+    else
       why += "; " + why_not;
     return a;
   }
@@ -1376,7 +1443,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
         std::to_string(m.tracking_only) +
         " frames since the map last confirmed the pose: only a placement localizes again";
   } else if (predicted && has_points) {
-    std::optional<Impl::Alignment> a = m.alignToMap(alignment_source, *predicted, why);
+    std::optional<Impl::Alignment> a = m.alignTracked(alignment_source, *predicted, why);
     if (odo)
       m.refuseWhereOdometryDegraded(a, *odo, why);
     if (a) {

@@ -97,10 +97,13 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_EQ(summary["placement"]["first_attempts"].get<int>(), 5);
   EXPECT_EQ(summary["placement"]["first_attempts_neighbourhood_keyframes"].get<int>(), 2);
   EXPECT_EQ(summary["placement"]["polar_candidates"].get<int>(), 3);
+  EXPECT_EQ(summary["placement"]["backoff_after"].get<int>(), 20);
   EXPECT_TRUE(summary["placement"]["track_on_map"].get<bool>());
   EXPECT_TRUE(summary["lookahead"]["on"].get<bool>());
   EXPECT_TRUE(summary["odometry_features"]["on_demand"].get<bool>());
   EXPECT_EQ(summary["map_alignment"]["merged_keyframes_within_m"].get<double>(), 10.0);
+  EXPECT_TRUE(summary["map_alignment"]["tracked_together"].get<bool>());
+  EXPECT_EQ(summary["map_alignment"]["tracked_together_min_overlap"].get<double>(), 0.5);
   EXPECT_TRUE(summary["map_alignment"]["degenerate_needs_tracked_odometry"].get<bool>());
 
   // In the map's frame: where the SLAM run put the same scans.
@@ -131,7 +134,8 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   ASSERT_EQ(run("-session " + quoted(m.session) + " -input " + quoted(m.scans) +
                 " -output " + quoted(out2) +
                 " -first 10 -last 19 -software-render -quiet -no-merged-keyframes "
-                "-place-min-initial 11 -place-min-inliers 38 -place-neighbours 3 "
+                "-no-tracked-together -place-backoff 7 -place-min-initial 11 "
+                "-place-min-inliers 38 -place-neighbours 3 "
                 "-place-polar 1 -initial-pose '" +
                 pose + "'"),
             0)
@@ -140,6 +144,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_TRUE(summary2["initial_pose_given"].get<bool>());
   EXPECT_EQ(summary2["frames_localized"].get<int>(), 10);
   EXPECT_EQ(summary2["map_alignment"]["merged_keyframes_within_m"].get<double>(), 0.0);
+  EXPECT_FALSE(summary2["map_alignment"]["tracked_together"].get<bool>());
   // Given thresholds replace the sensor preset's.
   EXPECT_EQ(summary2["placement"]["min_initial_inliers"].get<int>(), 11);
   EXPECT_EQ(summary2["placement"]["min_inliers"].get<int>(), 38);
@@ -147,6 +152,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_EQ(summary2["placement"]["first_attempts_neighbourhood_keyframes"].get<int>(), 3)
       << "-place-neighbours sets the first attempts' too";
   EXPECT_EQ(summary2["placement"]["polar_candidates"].get<int>(), 1);
+  EXPECT_EQ(summary2["placement"]["backoff_after"].get<int>(), 7);
 
   // Without the odometry's look-ahead, and with every scan's features: the same poses
   // (MapLocalization's own test compares them off the map, where the odometry runs on
@@ -320,6 +326,12 @@ TEST_F(LocalizeTool, BadSessionsAndArgumentsAreRefusedBeforeAnyWork)
                 " -place-polar -2"),
             1);
   EXPECT_NE(readFile(log_).find("-place-polar -2 (>= 0)"), std::string::npos)
+      << readFile(log_);
+  EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
+                " -place-backoff -1"),
+            1);
+  EXPECT_NE(readFile(log_).find("placement_backoff_after must be >= 0"),
+            std::string::npos)
       << readFile(log_);
   EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
                 " -dense-points 5"),

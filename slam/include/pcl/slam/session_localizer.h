@@ -323,6 +323,17 @@ struct MapLocalizationParams
   /// test's map, from the map's first pose), where one key-frame at a time does not.
   /// 0: key-frames one by one only.
   double merged_keyframes_within_m = 10.0;
+  /// A frame predicted from one the map confirmed, which no key-frame alone confirms, is
+  /// aligned to the nearest key-frames' clouds together (within
+  /// merged_keyframes_within_m), with the same checks, and confirmed when that
+  /// alignment pairs at least tracked_together_min_overlap of the scan's source points
+  /// and keeps no direction at the prediction. A drive at the map's edge, or passing a
+  /// place the other way, pairs too little with any one key-frame (simulated HDL-64
+  /// KITTI 05: 67-75 % together where one pairs under 30 %); a street of another
+  /// world paired 40-44 % with three key-frames together (doc/session.md, "Session
+  /// 57"). false: only a placement's confirmation aligns to them together.
+  bool tracked_together = true;
+  double tracked_together_min_overlap = 0.5; ///< (0, 1]
   /// While the map confirms every frame, the odometry rests: the motion between the
   /// last two confirmed frames predicts the next one (and compensates its sweep), as a
   /// map-based localizer tracks. The first frame the map does not confirm starts the
