@@ -582,7 +582,7 @@ run(int argc, char** argv)
   summary["map_alignment"] = {
       {"merged_keyframes_within_m", params.merged_keyframes_within_m},
       {"tracked_together", params.tracked_together},
-      {"tracked_together_min_overlap", params.tracked_together_min_overlap},
+      {"tracked_together_min_overlap_ratio", params.tracked_together_min_overlap_ratio},
       {"target_voxel_m", params.alignment.target_voxel_size_m}, // the sensor preset's
       {"degeneracy_min_ratio", params.alignment.degeneracy_min_ratio},
       {"degenerate_needs_tracked_odometry", params.degenerate_needs_tracked_odometry}};

@@ -95,9 +95,10 @@ MapLocalizationParams::isValid(std::string* why) const
   if (!(merged_keyframes_within_m >= 0.0))
     return fail("merged_keyframes_within_m must be >= 0, got " +
                 std::to_string(merged_keyframes_within_m));
-  if (!(tracked_together_min_overlap > 0.0 && tracked_together_min_overlap <= 1.0))
-    return fail("tracked_together_min_overlap must be in (0, 1], got " +
-                std::to_string(tracked_together_min_overlap));
+  if (!(tracked_together_min_overlap_ratio > 0.0 &&
+        tracked_together_min_overlap_ratio <= 1.0))
+    return fail("tracked_together_min_overlap_ratio must be in (0, 1], got " +
+                std::to_string(tracked_together_min_overlap_ratio));
   if (map_keyframes < 1)
     return fail("map_keyframes must be >= 1, got " + std::to_string(map_keyframes));
   if (!alignment.isValid(&sub))
@@ -896,11 +897,11 @@ struct MapLocalization::Impl
     return std::nullopt;
   }
 
-  /// A frame predicted from a frame the map confirmed (else from the odometry alone):
-  /// aligned to the nearest key-frames one by one (alignToMap()), and when none
-  /// confirms it, to their clouds together (tracked_together), where a drive at
-  /// the map's edge or on the other side of a road pairs too little with any one.
-  /// Together first while the last frame needed it.
+  /// A tracked frame: aligned to the nearest key-frames one by one (alignToMap()), and
+  /// when none confirms it and the map confirmed the frame before, to their clouds
+  /// together (tracked_together), where a drive at the map's edge or on the other side
+  /// of a road pairs too little with any one. Once the clouds together confirmed a
+  /// frame, they are tried first on the next.
   std::optional<Alignment> alignTracked(const std::function<const Source&()>& scan,
                                         const Pose3d& predicted,
                                         std::string& why)
@@ -915,15 +916,16 @@ struct MapLocalization::Impl
     if (!a && together && !previous_together)
       a = alignTrackedTogether(scan, predicted, why_not_together);
     if (!a)
-      why += why_not_together;
-    previous_together = a && a->together;
+      why += why.empty() && !why_not_together.empty() ? why_not_together.substr(2)
+                                                      : why_not_together;
     return a;
   }
 
   /// The clouds together pair with any street that looks alike far more than one
   /// key-frame's does (a simulated straight street of another world: 40-44 % of its
   /// points), so a tracked frame aligned to them must pair at least
-  /// tracked_together_min_overlap of its points, and constrain every direction itself.
+  /// tracked_together_min_overlap_ratio of its points, and (with a degeneracy-aware
+  /// alignment) keep no direction at the prediction. \a why gains "; ..." when not.
   std::optional<Alignment>
   alignTrackedTogether(const std::function<const Source&()>& scan,
                        const Pose3d& predicted,
@@ -932,16 +934,15 @@ struct MapLocalization::Impl
     std::optional<Alignment> a = alignToNearestTogether(scan, predicted, why);
     if (!a)
       return a;
-    char text[160];
-    if (a->overlap < params.tracked_together_min_overlap) {
-      std::snprintf(text,
-                    sizeof text,
-                    "; %s: %.0f %% of the source points paired, %.0f %% asked of a "
-                    "tracked frame",
-                    a->target.c_str(),
+    if (a->overlap < params.tracked_together_min_overlap_ratio) {
+      char shares[96];
+      std::snprintf(shares,
+                    sizeof shares,
+                    ": %.0f %% of the source points paired, %.0f %% asked of a tracked "
+                    "frame",
                     100.0 * a->overlap,
-                    100.0 * params.tracked_together_min_overlap);
-      why += text;
+                    100.0 * params.tracked_together_min_overlap_ratio);
+      why += "; " + a->target + shares;
       a.reset();
     } else if (a->degenerate_directions > 0) {
       why += "; " + a->target + ": " + std::to_string(a->degenerate_directions) +
@@ -1159,6 +1160,7 @@ struct MapLocalization::Impl
     else
       map_velocity.reset();
     previous_confirmed = true;
+    previous_together = false; // the caller sets it for a tracked frame aligned together
     tracking_only = 0;
     travelled_m = 0.0;
     T_world_previous = T_world_lidar;
@@ -1240,6 +1242,7 @@ struct MapLocalization::Impl
   {
     ++tracking_only;
     previous_confirmed = false;
+    previous_together = false;
     f.T_world_lidar = predicted;
     T_world_previous = predicted;
     f.status = tracking_only > params.max_tracking_only_frames
@@ -1467,6 +1470,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
                      " direction(s) it does not constrain kept at the prediction)";
       m.failed_placements = 0;
       m.confirm(a->T_world_lidar, dt);
+      m.previous_together = a->together;
       f.time_ms = watch.getTime();
       return f;
     }

@@ -461,11 +461,13 @@ TEST(MapLocalization, ASixteenBeamMapIsAlignedToInCoarserPlanes)
   double rmse[2] = {0.0, 0.0};
   for (const bool preset : {false, true}) {
     MapLocalizationParams params;
-    // One key-frame at a time: three key-frames' clouds together hold points enough
-    // even in 0.3 m voxels (39 of the 40 frames aligned there).
-    params.tracked_together = false;
-    if (preset)
+    if (preset) {
       applySensorPreset(SensorPreset::kVlp16, params);
+    } else {
+      // One key-frame at a time: three key-frames' clouds together hold points enough
+      // even in 0.3 m voxels (39 of the 40 frames aligned there).
+      params.tracked_together = false;
+    }
     MapLocalization localization(*m.localizer, m.odometry, params);
     double sum_sq = 0.0;
     for (std::size_t i = 160; i < 200; ++i) {
@@ -898,56 +900,57 @@ TEST(MapLocalization, PlacementsBackOffOffTheMapAndResumeOnIt)
 }
 
 /// A tracked frame that no key-frame alone confirms is aligned to the nearest
-/// key-frames' clouds together (MapLocalizationParams::tracked_together), from a frame
-/// the map confirmed. Here the input jumps from the mapped loop onto a straight street
-/// of another world, whose ground and generic facades pair with three key-frames'
-/// clouds together as well as a true place seen from elsewhere does (doc/session.md,
-/// "Session 42"): asked 30 % paired, as of one key-frame, the clouds together
-/// "localize" it; asked the default share (tracked_together_min_overlap), none of its
-/// frames is localized.
+/// key-frames' clouds together (MapLocalizationParams::tracked_together), right after
+/// a frame the map confirmed. Here the input jumps from the mapped loop onto a straight
+/// street of another world, whose ground and generic facades pair with three
+/// key-frames' clouds together as well as a true place seen from elsewhere does
+/// (doc/session.md, "Session 42"): four jumps, from four places of the loop onto four
+/// stretches of the street. Asked 30 % paired, as of one key-frame, the clouds together
+/// "localize" it, and each frame so confirmed lets the next one try them too; asked the
+/// default share (tracked_together_min_overlap_ratio), none of its frames is localized.
 TEST(MapLocalization, AJumpOntoAnotherWorldsStreetIsNotTrackedTogether)
 {
   const MappedLoop m = mapLoop(true, 40);
   const auto elsewhere = pathSimulator(PathType::kStraight, 24, 0.0, 9);
   // Without the residual check (max_rmse_ratio), which refuses some of them too: the
-  // key-frames one by one, together asking 30 % of the scan paired (as one key-frame
-  // does), and together asking the default share.
-  MapLocalizationParams defaults;
-  for (const double min_overlap : {0.0, 0.3, defaults.tracked_together_min_overlap}) {
-    MapLocalizationParams params;
-    params.tracked_together = min_overlap > 0.0;
-    if (min_overlap > 0.0)
-      params.tracked_together_min_overlap = min_overlap;
-    params.max_rmse_ratio = 0.0;
-    MapLocalization localization(*m.localizer, m.odometry, params);
-    localization.setInitialPose(m.truth(0));
+  // key-frames one by one, together asking 30 %, and together asking the default.
+  const MapLocalizationParams defaults;
+  for (const double min_ratio : {0.0, 0.3, defaults.tracked_together_min_overlap_ratio}) {
     int on_map = 0, wrong = 0;
-    for (std::size_t i = 0; i < 8; ++i) {
-      const LocalizationFrame f =
-          localization.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
-      on_map += f.status == LocalizationStatus::kLocalized ? 1 : 0;
-    }
     std::string first_wrong;
-    for (std::size_t k = 0; k < 24; ++k) {
-      const double t =
-          m.sim->timestamp(7) + elsewhere->timestamp(k) - elsewhere->timestamp(0) + 0.1;
-      const LocalizationFrame f =
-          localization.addScan(simulateFrame(*elsewhere, k), t, 8 + k);
-      if (f.status == LocalizationStatus::kLocalized) {
-        if (wrong++ == 0)
+    for (std::size_t jump = 0; jump < 4; ++jump) {
+      MapLocalizationParams params;
+      params.tracked_together = min_ratio > 0.0;
+      if (min_ratio > 0.0)
+        params.tracked_together_min_overlap_ratio = min_ratio;
+      params.max_rmse_ratio = 0.0;
+      MapLocalization localization(*m.localizer, m.odometry, params);
+      const std::size_t first = 10 * jump; // the loop's frames first..first+7
+      localization.setInitialPose(m.truth(first));
+      for (std::size_t i = first; i < first + 8; ++i) {
+        const LocalizationFrame f =
+            localization.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
+        on_map += f.status == LocalizationStatus::kLocalized ? 1 : 0;
+      }
+      for (std::size_t k = 6 * jump; k < 6 * jump + 6; ++k) {
+        const double t =
+            m.sim->timestamp(first + 7) + 0.1 * static_cast<double>(k - 6 * jump + 1);
+        const LocalizationFrame f =
+            localization.addScan(simulateFrame(*elsewhere, k), t, first + 8 + k);
+        if (f.status == LocalizationStatus::kLocalized && wrong++ == 0)
           first_wrong = f.message;
       }
     }
     std::printf(
-        "simulated jump onto another world's street, together from %.0f %% "
-        "(0: off): %d of 8 map frames localized, %d of 24 other-world frames%s%s\n",
-        100.0 * min_overlap,
+        "simulated jumps onto another world's street, together from %.0f %% "
+        "(0: off): %d of 32 map frames localized, %d of 24 other-world frames%s%s\n",
+        100.0 * min_ratio,
         on_map,
         wrong,
         wrong > 0 ? ", the first " : "",
         first_wrong.c_str());
-    EXPECT_GE(on_map, 7);
-    if (min_overlap == 0.3) {
+    EXPECT_GE(on_map, 28);
+    if (min_ratio == 0.3) {
       EXPECT_GT(wrong, 0) << "the street no longer pairs with the clouds together";
     } else {
       EXPECT_EQ(wrong, 0) << first_wrong;
@@ -1644,10 +1647,10 @@ TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)
                 "reuse_target_m must be >= 0");
   expectInvalid(mapParams([](auto& p) { p.merged_keyframes_within_m = NAN; }),
                 "merged_keyframes_within_m must be >= 0");
-  expectInvalid(mapParams([](auto& p) { p.tracked_together_min_overlap = 0.0; }),
-                "tracked_together_min_overlap must be in (0, 1], got 0");
-  expectInvalid(mapParams([](auto& p) { p.tracked_together_min_overlap = NAN; }),
-                "tracked_together_min_overlap must be in (0, 1], got nan");
+  expectInvalid(mapParams([](auto& p) { p.tracked_together_min_overlap_ratio = 0.0; }),
+                "tracked_together_min_overlap_ratio must be in (0, 1], got 0");
+  expectInvalid(mapParams([](auto& p) { p.tracked_together_min_overlap_ratio = NAN; }),
+                "tracked_together_min_overlap_ratio must be in (0, 1], got nan");
   expectInvalid(mapParams([](auto& p) { p.max_rmse_ratio = 0.5; }),
                 "max_rmse_ratio must be 0 or >= 1");
   expectInvalid(mapParams([](auto& p) { p.placement_every = 0; }),

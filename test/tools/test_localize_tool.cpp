@@ -103,7 +103,8 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_TRUE(summary["odometry_features"]["on_demand"].get<bool>());
   EXPECT_EQ(summary["map_alignment"]["merged_keyframes_within_m"].get<double>(), 10.0);
   EXPECT_TRUE(summary["map_alignment"]["tracked_together"].get<bool>());
-  EXPECT_EQ(summary["map_alignment"]["tracked_together_min_overlap"].get<double>(), 0.5);
+  EXPECT_EQ(summary["map_alignment"]["tracked_together_min_overlap_ratio"].get<double>(),
+            0.5);
   EXPECT_TRUE(summary["map_alignment"]["degenerate_needs_tracked_odometry"].get<bool>());
 
   // In the map's frame: where the SLAM run put the same scans.

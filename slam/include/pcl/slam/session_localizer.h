@@ -316,24 +316,25 @@ struct MapLocalizationParams
   /// provided the nearest of them is within this distance of the prediction [m]. A
   /// drive that passes a place the other way, or higher or lower than the mapping drive
   /// (simulated KITTI 00: the second drive 1 m above the first), pairs only 19-21 % of
-  /// its scan with any one key-frame and half of it with three together. Only for a
-  /// placement's confirmation, where the features placed the scan already: a tracked
-  /// frame aligned to clouds together can confirm a street of another world (a
-  /// simulated one paired 40-44 % of its scans with the three nearest key-frames of a
-  /// test's map, from the map's first pose), where one key-frame at a time does not.
-  /// 0: key-frames one by one only.
+  /// its scan with any one key-frame and half of it with three together. A tracked
+  /// frame is aligned to them with stricter checks (tracked_together): clouds together
+  /// can confirm a street of another world (a simulated one paired 40-44 % of its scans
+  /// with the three nearest key-frames of a test's map, from the map's first pose),
+  /// where one key-frame at a time does not. 0: key-frames one by one only, for both.
   double merged_keyframes_within_m = 10.0;
-  /// A frame predicted from one the map confirmed, which no key-frame alone confirms, is
-  /// aligned to the nearest key-frames' clouds together (within
-  /// merged_keyframes_within_m), with the same checks, and confirmed when that
-  /// alignment pairs at least tracked_together_min_overlap of the scan's source points
-  /// and keeps no direction at the prediction. A drive at the map's edge, or passing a
-  /// place the other way, pairs too little with any one key-frame (simulated HDL-64
-  /// KITTI 05: 67-75 % together where one pairs under 30 %); a street of another
-  /// world paired 40-44 % with three key-frames together (doc/session.md, "Session
-  /// 57"). false: only a placement's confirmation aligns to them together.
+  /// A tracked frame that no nearest key-frame confirms alone, right after a frame the
+  /// map confirmed, is aligned to their clouds together (within
+  /// merged_keyframes_within_m), with the same checks, and confirmed only when that
+  /// alignment pairs at least tracked_together_min_overlap_ratio of the scan's source
+  /// points and, where the alignment is degeneracy-aware (the vlp16 preset), keeps no
+  /// direction at the prediction. A drive at the map's edge, or passing a place the
+  /// other way, pairs too little with any one key-frame (simulated HDL-64 KITTI 05:
+  /// 67-75 % with three together where one pairs under 30 %); a street of another world
+  /// paired 40-44 % with three together (doc/session.md, "Session 57"). Once they
+  /// confirmed a frame, they are tried first on the next. false: only a tentative
+  /// placement's confirmation aligns to them together.
   bool tracked_together = true;
-  double tracked_together_min_overlap = 0.5; ///< (0, 1]
+  double tracked_together_min_overlap_ratio = 0.5; ///< (0, 1]
   /// While the map confirms every frame, the odometry rests: the motion between the
   /// last two confirmed frames predicts the next one (and compensates its sweep), as a
   /// map-based localizer tracks. The first frame the map does not confirm starts the
@@ -437,12 +438,12 @@ struct MapLocalizationParams
   int far_placement_lag = 3;
   /// After a placement, the frames just before it that the map did not confirm are
   /// localized after the fact: each, nearest first, is aligned to the map from the pose
-  /// of the frame after it moved back by the odometry, as a tracked frame is aligned
-  /// forwards (the same checks), until one is not confirmed, the odometry did not track
-  /// the step between the two (it restarted, or only predicted it), or backtrack_frames
-  /// were; a skipped or empty scan ends the frames kept. A car entering the map from a
-  /// road the map lacks is placed only 14-17 frames after it is on mapped road
-  /// (simulated KITTI 00 second drive): placements need the features of a scan that
+  /// of the frame after it moved back by the odometry, to the nearest key-frames one by
+  /// one with a tracked frame's checks, until one is not confirmed, the odometry did not
+  /// track the step between the two (it restarted, or only predicted it), or
+  /// backtrack_frames were; a skipped or empty scan ends the frames kept. A car entering
+  /// the map from a road the map lacks is placed only 14-17 frames after it is on mapped
+  /// road (simulated KITTI 00 second drive): placements need the features of a scan that
   /// overlaps the map well, a tracked frame's alignment does not. Those frames come
   /// back in the placing frame's LocalizationFrame::backtracked_frames; a caller that
   /// reports frames as they come reports them late. Targets built for them are not
