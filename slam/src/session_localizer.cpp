@@ -555,15 +555,13 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
                     static_cast<unsigned>(id),
                     m.distance,
                     m.yaw_deg);
-      if (verify(id,
-                 guess,
-                 GuessTolerance{
-                     params.polar_guess_radius_m, params.polar_guess_rotation_deg, -1.0},
-                 what,
-                 true)) {
-        p.time_ms = watch.getTime();
-        return p;
-      }
+      // Tentative only: a pass never places the scan here.
+      verify(id,
+             guess,
+             GuessTolerance{
+                 params.polar_guess_radius_m, params.polar_guess_rotation_deg, -1.0},
+             what,
+             true);
     }
   }
   // None placed the scan alone: the same candidates again with the key-frames around

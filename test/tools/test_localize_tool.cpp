@@ -313,32 +313,19 @@ TEST_F(LocalizeTool, BadSessionsAndArgumentsAreRefusedBeforeAnyWork)
                 " -initial-pose '1 2 3'"),
             1);
   EXPECT_NE(readFile(log_).find("need 7 finite numbers"), std::string::npos) << readFile(log_);
-  EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
-                " -place-min-inliers 2"),
-            1);
-  EXPECT_NE(readFile(log_).find("-place-min-inliers 2 (>= 3)"), std::string::npos)
-      << readFile(log_);
-  EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
-                " -place-neighbours -1"),
-            1);
-  EXPECT_NE(readFile(log_).find("-place-neighbours -1 (>= 0)"), std::string::npos)
-      << readFile(log_);
-  EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
-                " -place-polar -2"),
-            1);
-  EXPECT_NE(readFile(log_).find("-place-polar -2 (>= 0)"), std::string::npos)
-      << readFile(log_);
-  EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
-                " -place-backoff -1"),
-            1);
-  EXPECT_NE(readFile(log_).find("placement_backoff_after must be >= 0"),
-            std::string::npos)
-      << readFile(log_);
-  EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
-                " -dense-points 5"),
-            1);
-  EXPECT_NE(readFile(log_).find("-dense-points 5 (>= 10)"), std::string::npos)
-      << readFile(log_);
+  // Flags out of range: exit 1, the value named.
+  for (const auto& [flag, said] :
+       {std::pair{"-place-min-inliers 2", "-place-min-inliers 2 (>= 3)"},
+        std::pair{"-place-neighbours -1", "-place-neighbours -1 (>= 0)"},
+        std::pair{"-place-polar -2", "-place-polar -2 (>= 0)"},
+        std::pair{"-place-backoff -1", "placement_backoff_after must be >= 0"},
+        std::pair{"-dense-points 5", "-dense-points 5 (>= 10)"}}) {
+    EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
+                  " " + flag),
+              1)
+        << flag;
+    EXPECT_NE(readFile(log_).find(said), std::string::npos) << readFile(log_);
+  }
   EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(m.session)), 1);
   EXPECT_FALSE(fs::exists(out / "summary.json"));
   EXPECT_NO_THROW(pcl::rast::readTrajectory((m.slam_out / "poses_kitti.txt").string()));
