@@ -9,8 +9,11 @@
 ///
 /// Read the CPU column on a shared machine: wall time includes waiting for the core.
 
+#include "../slam/src/elevation_calibration.h"
+
 #include <algorithm>
 #include <benchmark/benchmark.h>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <pcl/features/orb_raster_features.h>
@@ -305,6 +308,7 @@ processFrames(benchmark::State& state,
   state.counters["refine_ms"] = median(&rast::OdometryTimings::refine_ms);
   state.counters["keyframe_ms"] = median(&rast::OdometryTimings::keyframe_ms);
   state.counters["deskew_ms"] = median(&rast::OdometryTimings::deskew_ms);
+  state.counters["elevation_ms"] = median(&rast::OdometryTimings::elevation_ms);
   state.counters["total_ms"] = median(&rast::OdometryTimings::total_ms);
 }
 
@@ -383,6 +387,36 @@ BM_ProcessFrameMapNearerPoints(benchmark::State& state)
   processFrames(state, params);
 }
 BENCHMARK(BM_ProcessFrameMapNearerPoints)->Unit(benchmark::kMillisecond)->Iterations(210);
+
+/// Without the beams' elevation self-calibration (-no-elevation-calibration): its cost,
+/// side by side (its table is in use from the 51st tracked frame on).
+void
+BM_ProcessFrameNoElevationCalibration(benchmark::State& state)
+{
+  rast::OdometryParams params;
+  params.elevation_calibration.enabled = false;
+  processFrames(state, params);
+}
+BENCHMARK(BM_ProcessFrameNoElevationCalibration)
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(210);
+
+/// The correction of one scan by a table that turns every bin (what each frame pays
+/// once the calibration has a table).
+void
+BM_ElevationCorrection(benchmark::State& state)
+{
+  if (skipWithoutData(state))
+    return;
+  const Cloud& scan = *data().scans.front();
+  rast::odometry_detail::ElevationTable table;
+  for (int b = 0; b < table.bins(); ++b)
+    table.set(b, (b % 2 ? 1.0 : -1.0) * 0.001);
+  for (auto _ : state)
+    benchmark::DoNotOptimize(rast::odometry_detail::applyElevationTable(table, scan));
+  state.counters["points"] = static_cast<double>(scan.size());
+}
+BENCHMARK(BM_ElevationCorrection)->Unit(benchmark::kMillisecond);
 
 /// Without the vehicle-dynamics prior (-no-vehicle-prior): its cost, side by side.
 void

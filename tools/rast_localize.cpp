@@ -277,6 +277,12 @@ run(int argc, char** argv)
                  "odometry's prediction (the vlp16 preset) confirms the frame also where "
                  "the odometry was degraded",
                  &trust_degraded_odometry);
+  bool no_elevation_calibration = false;
+  args.addSwitch("no-elevation-calibration",
+                 "the odometry between map alignments keeps the points at the elevation "
+                 "the sensor gave them (no self-calibration of the beams' elevation; "
+                 "doc/odometry.md)",
+                 &no_elevation_calibration);
   bool all_features = false;
   args.addSwitch("all-features",
                  "make every scan's raster features, also between the placement attempts "
@@ -368,6 +374,8 @@ run(int argc, char** argv)
   }
   localizer_params.polar_candidates = place_polar;
   localizer_params.odometry.dense.max_source_points = dense_points;
+  if (no_elevation_calibration)
+    localizer_params.odometry.elevation_calibration.enabled = false;
   std::string deskew_reason, deskew_timing;
   applyDeskewFlags(deskew, reader, static_cast<std::size_t>(stride),
                    localizer_params.odometry.deskew, deskew_reason, deskew_timing);
@@ -558,6 +566,8 @@ run(int argc, char** argv)
   summary["stop_signal"] = stopRequested() ? json(stopSignalName()) : json(nullptr);
   summary["deskew"] = {{"mode", rast::toString(localizer_params.odometry.deskew.mode)},
                        {"reason", deskew_reason}};
+  summary["elevation_calibration"] = {
+      {"enabled", localizer_params.odometry.elevation_calibration.enabled}};
   summary["placement"] = {
       {"min_score", place_min_score},
       {"min_initial_inliers", localizer_params.verification.min_initial_inliers},

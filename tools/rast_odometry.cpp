@@ -57,7 +57,7 @@ run(int argc, char** argv)
   int first = 0, last = -1, stride = 1;
   bool no_refine = false, no_lookahead = false, no_loose_rematch = false,
        level = params.ground.level_cloud;
-  bool no_vehicle_prior = false, quiet = false;
+  bool no_vehicle_prior = false, quiet = false, no_elevation_calibration = false;
   int max_features = params.orb.max_features;
   double min_range = params.min_range_m, max_range = params.max_range_m;
   double ratio = params.registration.matching.ratio;
@@ -117,6 +117,10 @@ run(int argc, char** argv)
                  "the prior gates stay fixed and the dense step has no pull to the prior "
                  "(the odometry before session 18; doc/odometry.md)",
                  &no_vehicle_prior);
+  args.addSwitch("no-elevation-calibration",
+                 "the points stay at the elevation the sensor gave them (no "
+                 "self-calibration of the beams' elevation; doc/odometry.md)",
+                 &no_elevation_calibration);
   args.addSwitch(
       "no-lookahead",
       "compute each scan's ground, raster and ORB on the main thread after the "
@@ -192,6 +196,8 @@ run(int argc, char** argv)
       p.loose_rematch = false;
     if (no_vehicle_prior)
       rast::disableVehiclePrior(p);
+    if (no_elevation_calibration)
+      p.elevation_calibration.enabled = false;
     p.orb.max_features = max_features;
     p.registration.matching.ratio = ratio;
     p.min_range_m = min_range;
@@ -367,6 +373,8 @@ run(int argc, char** argv)
   summary["median_frame_ms"] = median;
   summary["frames_with_degenerate_directions"] = frames_degenerate;
   summary["sensor"] = rast::toString(preset);
+  summary["elevation_calibration"] =
+      pcl_rast_tools::elevationCalibrationJson(odometry.elevationCalibration());
   summary["deskew"] = {{"mode", rast::toString(params.deskew.mode)},
                        {"reason", deskew_reason},
                        {"timing", deskew_timing},

@@ -264,6 +264,7 @@ run(int argc, char** argv)
   double weak_feature_share = defaults.odometry.weak_feature_share;
   double visibility_margin = defaults.odometry.visibility_margin_m;
   bool no_vehicle_prior = false;
+  bool no_elevation_calibration = false;
   bool no_ba = false;
   bool ba = false;
   bool global_ba = defaults.loop_closing.global_bundle_adjustment;
@@ -343,6 +344,10 @@ run(int argc, char** argv)
                    "tracking: the prior gates stay fixed and the dense step has no pull to "
                    "the prior (the odometry before session 18; doc/odometry.md)",
                    &no_vehicle_prior);
+  parser.addSwitch("no-elevation-calibration",
+                   "tracking: the points stay at the elevation the sensor gave them (no "
+                   "self-calibration of the beams' elevation; doc/odometry.md)",
+                   &no_elevation_calibration);
   parser.addDouble("visibility-margin",
                    "tracking, moving objects: map voxels the scan sees through, and scan "
                    "points the key-frame saw through, by more than this are left out of the "
@@ -480,6 +485,8 @@ run(int argc, char** argv)
     params.odometry.visibility_margin_m = visibility_margin;
   if (no_vehicle_prior)
     rast::disableVehiclePrior(params.odometry);
+  if (no_elevation_calibration)
+    params.odometry.elevation_calibration.enabled = false;
   if (!params.isValid(&why))
     throw std::logic_error("sensor preset made invalid parameters: " + why);
   // The session's map indexed for placing the drive's key-frames on it (after the run).
@@ -791,6 +798,8 @@ run(int argc, char** argv)
   summary["interrupted"] = interrupted;
   summary["stop_signal"] = interrupted ? json(pcl_rast_tools::stopSignalName()) : json(nullptr);
   summary["error"] = run_error ? json(error_message) : json(nullptr);
+  summary["elevation_calibration"] =
+      pcl_rast_tools::elevationCalibrationJson(slam.elevationCalibration());
   summary["deskew"] = {{"mode", rast::toString(params.odometry.deskew.mode)},
                        {"frames_by_time_source", tally.frames_by_time_source},
                        {"second_passes", tally.second_passes},

@@ -161,6 +161,8 @@ OdometryParams::isValid(std::string* why) const
     reason = "turn_search." + sub;
   else if (!deskew.isValid(&sub))
     reason = "deskew." + sub;
+  else if (!elevation_calibration.isValid(&sub))
+    reason = "elevation_calibration." + sub;
   else if (keyframe_min_frames < 1)
     reason =
         "keyframe_min_frames must be >= 1, got " + std::to_string(keyframe_min_frames);
@@ -420,6 +422,12 @@ Odometry::Odometry(const OdometryParams& params)
 
 Odometry::~Odometry() = default;
 
+ElevationCalibrationState
+Odometry::elevationCalibration() const
+{
+  return impl_->elevation ? impl_->elevation->state() : ElevationCalibrationState();
+}
+
 const OdometryParams&
 Odometry::params() const
 {
@@ -628,16 +636,25 @@ Odometry::processFrame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
 }
 
 Odometry::Impl::Prepared
-Odometry::Impl::prepare(FrontEnd& front,
-                        const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
-                        const std::vector<float>& given_times,
-                        bool keep_times,
-                        double frame_interval_s,
-                        const SweepMotion* motion,
-                        OdometryFrameResult result,
-                        bool features) const
+Odometry::Impl::prepare(
+    FrontEnd& front,
+    const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
+    const std::shared_ptr<const odometry_detail::ElevationTable>& elevation_table,
+    const std::vector<float>& given_times,
+    bool keep_times,
+    double frame_interval_s,
+    const SweepMotion* motion,
+    OdometryFrameResult result,
+    bool features) const
 {
-  auto frame = std::make_unique<Frame>(input);
+  pcl::PointCloud<pcl::PointXYZI>::ConstPtr corrected;
+  if (elevation_table) {
+    const pcl::StopWatch t0;
+    corrected = odometry_detail::applyElevationTable(*elevation_table, *input);
+    result.timings.elevation_ms = t0.getTime();
+  }
+  auto frame = std::make_unique<Frame>(input, corrected);
+  frame->elevation_table = elevation_table;
   if (keep_times)
     frame->own_times = given_times;
   const std::vector<float>& point_times = keep_times ? frame->own_times : given_times;
@@ -750,12 +767,14 @@ Odometry::Impl::launchAhead(const OdometryInput& next, double timestamp_s)
   // wanted: then likely neither are the next one's (made in its call if they are).
   a.job = ahead_thread->run([this,
                              input = next.cloud,
+                             table = elevation ? elevation->table() : nullptr,
                              times = next.point_times_s,
                              next_interval,
                              next_result = std::move(next_result),
                              features = features_wanted] {
     return prepare(front_end_ahead,
                    input,
+                   table,
                    times,
                    true,
                    next_interval,
@@ -802,6 +821,10 @@ Odometry::Impl::process(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
       taken = mine->job.get();
     if (taken && taken->frame->own_times != point_times)
       taken.reset(); // prepared for other point times (a caller's mistake): again
+    const std::shared_ptr<const odometry_detail::ElevationTable> elevation_table =
+        elevation ? elevation->table() : nullptr;
+    if (taken && taken->frame->elevation_table != elevation_table)
+      taken.reset(); // the calibration was updated since (once a window): again
     // Without features wanted, steps 2-3 wait for a frame the dense step alone does
     // not track (and for a key-frame). Only with a key-frame and a tracked velocity to
     // predict from, and after the cold start's first scan has found its motion.
@@ -810,6 +833,7 @@ Odometry::Impl::process(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
     Prepared prepared = taken ? std::move(*taken)
                               : prepare(front_end,
                                         cloud,
+                                        elevation_table,
                                         point_times,
                                         false,
                                         motion.dt,

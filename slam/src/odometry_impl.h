@@ -5,6 +5,7 @@
 /// key-frames, motion compensation; odometry_tracking.cpp: the tracking steps). Not
 /// installed.
 
+#include "elevation_calibration.h"
 #include "odometry_local_map.h"
 #include "stage_util.h"
 #include "work_queue.h"
@@ -176,7 +177,11 @@ struct Odometry::Impl
 {
   explicit Impl(const OdometryParams& p)
       : params(p), front_end(p), front_end_ahead(p), local_map(p.dense)
-  {}
+  {
+    if (p.elevation_calibration.enabled)
+      elevation = std::make_unique<odometry_detail::ElevationCalibration>(
+          p.elevation_calibration);
+  }
 
   /// The stateless extractors of steps 1-3: one for the frames prepared in order, one
   /// for the look-ahead's thread (the two run at the same time).
@@ -198,6 +203,8 @@ struct Odometry::Impl
   bool features_wanted = true;
   /// The local map: read through localMap(), which waits for an insertion running.
   VoxelPlaneMap local_map;
+  /// The beams' elevation self-calibration (params.elevation_calibration); null when off.
+  std::unique_ptr<odometry_detail::ElevationCalibration> elevation;
   int map_scans = 0; ///< scans inserted into the map so far
   /// A scan's insertion into local_map running on map_thread (insertIntoMap).
   mutable std::future<void> map_insertion;
@@ -284,12 +291,20 @@ struct Odometry::Impl
   /// Everything the steps of one frame's tracking share.
   struct Frame
   {
-    explicit Frame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud)
-        : input_ptr(cloud), input(*cloud)
+    /// \a cloud as the sensor placed it, \a corrected by the elevation calibration (or
+    /// null: the same).
+    Frame(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& cloud,
+          const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& corrected)
+        : raw_ptr(cloud), input_ptr(corrected ? corrected : cloud), input(*input_ptr)
     {}
     const pcl::StopWatch watch; ///< since the frame came in
+    /// The scan as given: its points' elevation tells their beam (ElevationCalibration).
+    pcl::PointCloud<pcl::PointXYZI>::ConstPtr raw_ptr;
+    /// The scan every step uses: the elevation-corrected one.
     pcl::PointCloud<pcl::PointXYZI>::ConstPtr input_ptr;
     const pcl::PointCloud<pcl::PointXYZI>& input;
+    /// The correction it was made with (null: none).
+    std::shared_ptr<const odometry_detail::ElevationTable> elevation_table;
     /// Enough finite points within the range limits (else the frame is skipped).
     bool usable = true;
     /// Why the point times given were not used (empty: they were, or none were given).
@@ -359,15 +374,18 @@ struct Odometry::Impl
   /// runs it on its thread. Without \a features, steps 2-3 wait for the caller
   /// (process). \a point_times are checked here (unusable ones are ignored);
   /// with \a keep_times the frame keeps a copy of them, else they must outlive the frame.
-  /// \a frame_interval_s is the period of azimuth times.
-  Prepared prepare(FrontEnd& front,
-                   const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
-                   const std::vector<float>& point_times,
-                   bool keep_times,
-                   double frame_interval_s,
-                   const SweepMotion* motion,
-                   OdometryFrameResult result,
-                   bool features) const;
+  /// \a frame_interval_s is the period of azimuth times. The scan is first corrected
+  /// by \a elevation_table (null: none).
+  Prepared
+  prepare(FrontEnd& front,
+          const pcl::PointCloud<pcl::PointXYZI>::ConstPtr& input,
+          const std::shared_ptr<const odometry_detail::ElevationTable>& elevation_table,
+          const std::vector<float>& point_times,
+          bool keep_times,
+          double frame_interval_s,
+          const SweepMotion* motion,
+          OdometryFrameResult result,
+          bool features) const;
   /// Steps 2-3 of a prepared frame: the non-ground points compensated with \a motion
   /// (when the scan has times and the motion a velocity), the raster, ORB. (The dense
   /// step's source points are chosen and compensated on the caller's thread: process.)

@@ -670,6 +670,19 @@ Odometry::Impl::decideKeyFrame(Frame& frame, OdometryFrameResult& result)
   const bool tracked =
       result.status == TrackingStatus::kFeatures ||
       (result.status == TrackingStatus::kDenseFallback && result.refined);
+  if (elevation && tracked && result.refined && !result.degraded &&
+      !frame.source.empty()) {
+    // The residuals against the map the frame was just aligned to (before it is added),
+    // of frames whose pose the scan fixes well: where a direction was kept at the
+    // prior or a fallback set the pose, the residuals hold that pose's error too.
+    const pcl::StopWatch t0;
+    elevation->observe(*frame.raw_ptr,
+                       frame.source_indices,
+                       frame.source,
+                       result.T_world_lidar.cast<float>(),
+                       localMap());
+    result.timings.elevation_ms += t0.getTime();
+  }
   const int frames_since = frames_since_keyframe + 1;
   // A frame tracked without features has no inliers to count: the paper's rule waits
   // twice as long there (kDenseOnlyKeyframeFactor).

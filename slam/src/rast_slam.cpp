@@ -539,6 +539,12 @@ toString(SlamStage stage)
   return "unknown";
 }
 
+ElevationCalibrationState
+RastSlam::elevationCalibration() const
+{
+  return impl_->odometry.elevationCalibration();
+}
+
 PoseVector
 RastSlam::framePoses() const
 {

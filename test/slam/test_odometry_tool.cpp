@@ -325,18 +325,21 @@ TEST_F(OdometryTool, RealScanPairWithTheDefaults)
 
 /// -deskew: auto leaves .bin scans (no time field) as they are; on compensates them
 /// with times from the azimuth; the choice and the counts are in summary.json and
-/// timing.csv.
+/// timing.csv. (The last run also turns the elevation self-calibration off.)
 TEST_F(OdometryTool, DeskewModeIsChosenAndReported)
 {
   const fs::path seq = sequence();
   for (const std::string mode : {"auto", "on", "off"}) {
     const fs::path out = dir_ / ("out_" + mode);
+    const bool calibration = mode != "off";
     ASSERT_EQ(runOdometry("-input '" + seq.string() + "' -output '" + out.string() +
-                              "' -deskew " + mode,
+                              "' -deskew " + mode +
+                              (calibration ? "" : " -no-elevation-calibration"),
                           log_),
               0)
         << readAll(log_);
     const auto summary = nlohmann::json::parse(readAll(out / "summary.json"));
+    EXPECT_EQ(summary["elevation_calibration"]["enabled"].get<bool>(), calibration);
     const auto& deskew = summary["deskew"];
     EXPECT_EQ(deskew["mode"].get<std::string>(), mode);
     const auto timing = readLines(out / "timing.csv");

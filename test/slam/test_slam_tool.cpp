@@ -181,8 +181,9 @@ TEST_F(SlamTool, UnknownFlagAndMissingOutputAreArgumentErrors)
   EXPECT_NE(readFile(log_).find("-no-revisit-culling"), std::string::npos);
 }
 
-/// -visibility-margin (issue 10, off by default) is handed to the SLAM's odometry as to
-/// pcl_rast_odometry's: the summary records the odometry parameters the run was made with.
+/// -visibility-margin (issue 10, off by default) and -no-elevation-calibration are handed
+/// to the SLAM's odometry as to pcl_rast_odometry's: the summary records the odometry
+/// parameters the run was made with.
 TEST_F(SlamTool, TheVisibilityMarginIsHandedToTheOdometry)
 {
   const fs::path out = dir_ / "out";
@@ -197,15 +198,20 @@ TEST_F(SlamTool, TheVisibilityMarginIsHandedToTheOdometry)
   EXPECT_EQ(summary["params"]["visibility_margin_m"].get<double>(), 1.0);
   EXPECT_EQ(summary["frames"].get<int>(), 40);
   EXPECT_LT(summary["ate_rmse_m"].get<double>(), 1.0);
+  // The calibration is on (the hdl64 preset), but 40 frames are fewer than its first
+  // window of 50: nothing corrected yet.
+  EXPECT_TRUE(summary["elevation_calibration"]["enabled"].get<bool>());
+  EXPECT_EQ(summary["elevation_calibration"]["updates"].get<int>(), 0);
+  EXPECT_TRUE(summary["elevation_calibration"]["corrections"].empty());
   ASSERT_EQ(runTool("-input '" + seq.string() + "' -output '" + out.string() +
-                        "' -software-render -last 3",
+                        "' -software-render -last 3 -no-elevation-calibration",
                     log_),
             0)
       << readFile(log_);
-  EXPECT_EQ(nlohmann::json::parse(readFile(out / "summary.json"))["params"]["visibility_margin_m"]
-                .get<double>(),
-            0.0)
+  const auto summary2 = nlohmann::json::parse(readFile(out / "summary.json"));
+  EXPECT_EQ(summary2["params"]["visibility_margin_m"].get<double>(), 0.0)
       << "off by default";
+  EXPECT_FALSE(summary2["elevation_calibration"]["enabled"].get<bool>());
 }
 
 /// -features-on-demand: recorded in the summary with the frames that skipped their

@@ -106,6 +106,8 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_EQ(summary["map_alignment"]["tracked_together_min_overlap_ratio"].get<double>(),
             0.5);
   EXPECT_TRUE(summary["map_alignment"]["degenerate_needs_tracked_odometry"].get<bool>());
+  EXPECT_TRUE(summary["elevation_calibration"]["enabled"].get<bool>())
+      << "hdl64's default";
 
   // In the map's frame: where the SLAM run put the same scans.
   const auto slam = pcl::rast::readTrajectory((m.slam_out / "poses_kitti.txt").string());
@@ -136,6 +138,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
                 " -output " + quoted(out2) +
                 " -first 10 -last 19 -software-render -quiet -no-merged-keyframes "
                 "-no-tracked-together -place-backoff 7 -place-min-initial 11 "
+                "-no-elevation-calibration "
                 "-place-min-inliers 38 -place-neighbours 3 "
                 "-place-polar 1 -initial-pose '" +
                 pose + "'"),
@@ -146,6 +149,7 @@ TEST_F(LocalizeTool, LocalizesALaterStartWithNoInitialPose)
   EXPECT_EQ(summary2["frames_localized"].get<int>(), 10);
   EXPECT_EQ(summary2["map_alignment"]["merged_keyframes_within_m"].get<double>(), 0.0);
   EXPECT_FALSE(summary2["map_alignment"]["tracked_together"].get<bool>());
+  EXPECT_FALSE(summary2["elevation_calibration"]["enabled"].get<bool>());
   // Given thresholds replace the sensor preset's.
   EXPECT_EQ(summary2["placement"]["min_initial_inliers"].get<int>(), 11);
   EXPECT_EQ(summary2["placement"]["min_inliers"].get<int>(), 38);

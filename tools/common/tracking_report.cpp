@@ -46,4 +46,18 @@ DegradedStretches::warning(const std::string& tool) const
          "stretches\")";
 }
 
+nlohmann::json
+elevationCalibrationJson(const pcl::rast::ElevationCalibrationState& state)
+{
+  nlohmann::json corrections = nlohmann::json::array();
+  for (const auto& [elevation_deg, correction_deg] : state.corrections)
+    corrections.push_back({elevation_deg, correction_deg});
+  return {{"enabled", state.enabled},
+          {"updates", state.updates},
+          {"bins_corrected", state.bins_corrected},
+          {"rms_correction_deg", state.rms_correction_deg},
+          {"max_abs_correction_deg", state.max_abs_correction_deg},
+          {"corrections", corrections}};
+}
+
 } // namespace pcl_rast_tools

@@ -42,4 +42,10 @@ private:
   std::size_t current_ = 0, current_first_ = 0;
 };
 
+/// \brief The elevation self-calibration's estimate for summary.json: {"enabled",
+/// "updates", "bins_corrected", "rms_correction_deg", "max_abs_correction_deg",
+/// "corrections": [[elevation_deg, correction_deg], ...]}.
+nlohmann::json
+elevationCalibrationJson(const pcl::rast::ElevationCalibrationState& state);
+
 } // namespace pcl_rast_tools

@@ -251,6 +251,10 @@ public:
   /// \brief Corrected pose of every input frame so far (LiDAR frame in the world frame
   /// of the first scan), in input order.
   PoseVector framePoses() const;
+
+  /// \brief The tracking's estimate of the beams' elevation errors
+  /// (OdometryParams::elevation_calibration).
+  ElevationCalibrationState elevationCalibration() const;
   /// \brief Frame records (status, reference key-frame, skipped reason), input order.
   std::vector<FrameRecord> frames() const;
   /// \brief Corrected key-frame poses, by id.
