@@ -124,10 +124,10 @@ ElevationCalibration::observe(const pcl::PointCloud<pcl::PointXYZI>& raw,
   for (std::size_t k = 0; k < n; ++k) {
     const pcl::PointXYZI& r = raw[static_cast<std::size_t>(indices[k])];
     const float rho = std::sqrt(r.x * r.x + r.y * r.y);
-    const float range = std::sqrt(rho * rho + r.z * r.z);
     if (!(rho > 0.0f))
       continue;
-    const int b = layout_.binOf(r.x, r.y, r.z);
+    const float range = std::sqrt(rho * rho + r.z * r.z);
+    const int b = layout_.binOfTan(r.z / rho); // binOf, with rho at hand
     if (b < 0)
       continue;
     const Eigen::Vector3f q = T_world_lidar * source[k];
