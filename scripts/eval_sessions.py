@@ -18,7 +18,9 @@ revisits the first drive's roads. Then:
             that lie on mapped roads
 
 "On mapped roads": within 5 m of a first-drive position (ground truth); "off the map":
-farther than 20 m from every one.
+farther than 20 m from every one. The ATE with the map frame aligned once is split into
+horizontal and vertical parts, beside the map's own error at the same places (which the
+localization follows); the multi-session joint ATE is split the same way per drive.
 
 With --drive-seed D the second drive comes from a second simulation of the same world
 along the same trajectory (pcl_rast_simulate -drive-seed D): other traffic, other noise
@@ -68,6 +70,16 @@ def read_kitti(path):
 
 def position(p):
     return (p[3], p[7], p[11])
+
+
+def horizontal_vertical(pairs):
+    """RMS of the horizontal and of the vertical part of (estimate, truth) position
+    pairs, in the simulator's world frame (z up)."""
+    pairs = list(pairs)
+    h = sum((a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2 for a, b in pairs)
+    v = sum((a[2] - b[2]) ** 2 for a, b in pairs)
+    n = max(1, len(pairs))
+    return math.sqrt(h / n), math.sqrt(v / n)
 
 
 def dist(a, b):
@@ -370,9 +382,16 @@ def main():
     map_poses = read_kitti(os.path.join(out, "map", "poses_kitti.txt"))
     map_eval = evaluate(a.build, map_poses, gt[:m + 1], out, "map_se3")
     t_gt_map = map_eval["T_gt_estimate"]
-    err_aligned = {i: dist(transform_point(t_gt_map, position(loc[index[i]])),
-                           position(gt[i])) for i in on_loc}
+    aligned = {i: (transform_point(t_gt_map, position(loc[index[i]])), position(gt[i]))
+               for i in on_loc}
+    err_aligned = {i: dist(*pair) for i, pair in aligned.items()}
     ate_aligned = math.sqrt(sum(e * e for e in err_aligned.values()) / max(1, len(on_loc)))
+    # The map's own error at the same places (its pose of each place, the same fit): the
+    # part of the ATE above that the localization inherits.
+    map_places = [(transform_point(t_gt_map, p), position(gt[i]))
+                  for i in on_loc for p in [truth.position(i)] if p is not None]
+    map_place_ate = math.sqrt(sum(dist(*pair) ** 2 for pair in map_places) /
+                              max(1, len(map_places)))
     map_err = {i: truth.error(i, loc[index[i]]) for i in on_loc}
     wrong_on_map = [i for i in on_loc if map_err[i] is not None and map_err[i] > 2.0]
     map_rmse = math.sqrt(sum(e * e for e in map_err.values() if e is not None) /
@@ -387,8 +406,13 @@ def main():
           "backtracking" % (len(on_online), 100.0 * len(on_online) / max(1, len(on_map)),
                             len(on_loc) - len(on_online)))
     print("  ATE with the map frame aligned once by the map drive's SE(3) fit (the ATE "
-          "convention; the second drive is not fitted): %.3f m, largest %.3f m"
-          % (ate_aligned, max(err_aligned.values() or [0])))
+          "convention; the second drive is not fitted): %.3f m (horizontal %.3f, vertical "
+          "%.3f), largest %.3f m"
+          % ((ate_aligned,) + horizontal_vertical(aligned.values()) +
+             (max(err_aligned.values() or [0]),)))
+    print("  the map's own error at those places, which the localization follows (its pose of "
+          "each place, the same fit): %.3f m (horizontal %.3f, vertical %.3f)"
+          % ((map_place_ate,) + horizontal_vertical(map_places)))
     print("  placed more than 2 m off: %d frames (%d off the map)"
           % (len(wrong), len([i for i in wrong if i in off_map])))
     print("  against the map's own pose of each place (nearest first-drive frame moved by the "
@@ -438,23 +462,35 @@ def multi_session(a, out, gt, session, second_first):
     print("\nmulti-session: %s" % ms["message"])
 
     def keyframe_ate(session_dir, offset_of_drive, name):
+        """The SE(3)-aligned key-frame ATE, and each drive's (horizontal, vertical) RMS
+        under that fit."""
         s = json.load(open(os.path.join(session_dir, "session.json")))
         drives = s.get("drives") or [{"first_keyframe": 0, "keyframes": len(s["keyframes"])}]
-        est, ref = [], []
+        est, ref, drive_of = [], [], []
         for d, drive in enumerate(drives):
             for k in range(drive["first_keyframe"], drive["first_keyframe"] + drive["keyframes"]):
                 kf = s["keyframes"][k]
                 est.append(pose_from_json(kf["pose"]))
                 ref.append(gt[kf["frame_index"] + offset_of_drive[d]])
-        return ate(a.build, est, ref, out, name)
+                drive_of.append(d)
+        result = evaluate(a.build, est, ref, out, name)
+        t = result["T_gt_estimate"]
+        split = [horizontal_vertical((transform_point(t, position(e)), position(r))
+                                     for e, r, dd in zip(est, ref, drive_of) if dd == d)
+                 for d in range(len(drives))]
+        return result["ate_rmse_m"], split
 
-    first_alone = keyframe_ate(session, [0], "kf_first")
-    second_alone = keyframe_ate(os.path.join(out, "alone_session"), [second_first], "kf_second")
+    first_alone, _ = keyframe_ate(session, [0], "kf_first")
+    second_alone, _ = keyframe_ate(os.path.join(out, "alone_session"), [second_first],
+                                   "kf_second")
     if ms["connected"]:
-        joint = keyframe_ate(os.path.join(out, "merged_session"), [0, second_first], "kf_joint")
+        joint, split = keyframe_ate(os.path.join(out, "merged_session"), [0, second_first],
+                                    "kf_joint")
         print("  key-frame ATE (SE(3)-aligned): first drive alone %.3f m, second alone %.3f m, "
               "joint %.3f m (target: at most %.3f m)"
               % (first_alone, second_alone, joint, max(first_alone, second_alone) + 0.05))
+        print("  in the joint fit, horizontal / vertical: first drive %.3f / %.3f m, second "
+              "%.3f / %.3f m" % (split[0] + split[1]))
     else:
         print("  not joined: the second drive is component %d; key-frame ATE alone %.3f m and "
               "%.3f m" % (ms["component"], first_alone, second_alone))
