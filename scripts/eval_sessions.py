@@ -489,8 +489,9 @@ def multi_session(a, out, gt, session, second_first):
         print("  key-frame ATE (SE(3)-aligned): first drive alone %.3f m, second alone %.3f m, "
               "joint %.3f m (target: at most %.3f m)"
               % (first_alone, second_alone, joint, max(first_alone, second_alone) + 0.05))
-        print("  in the joint fit, horizontal / vertical: first drive %.3f / %.3f m, second "
-              "%.3f / %.3f m" % (split[0] + split[1]))
+        if len(split) == 2:
+            print("  in the joint fit, horizontal / vertical: first drive %.3f / %.3f m, "
+                  "second %.3f / %.3f m" % (split[0] + split[1]))
     else:
         print("  not joined: the second drive is component %d; key-frame ATE alone %.3f m and "
               "%.3f m" % (ms["component"], first_alone, second_alone))
