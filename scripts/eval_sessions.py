@@ -388,11 +388,13 @@ def main():
     ate_aligned = math.sqrt(sum(e * e for e in err_aligned.values()) / max(1, len(on_loc)))
     # The map's own error at the same places (its pose of each place, the same fit): the
     # part of the ATE above that the localization inherits.
+    map_pose_of = {i: truth.position(i) for i in on_loc}  # None where the map has none
     map_places = [(transform_point(t_gt_map, p), position(gt[i]))
-                  for i in on_loc for p in [truth.position(i)] if p is not None]
+                  for i, p in map_pose_of.items() if p is not None]
     map_place_ate = math.sqrt(sum(dist(*pair) ** 2 for pair in map_places) /
                               max(1, len(map_places)))
-    map_err = {i: truth.error(i, loc[index[i]]) for i in on_loc}
+    map_err = {i: dist(position(loc[index[i]]), p) if p is not None else None
+               for i, p in map_pose_of.items()}
     wrong_on_map = [i for i in on_loc if map_err[i] is not None and map_err[i] > 2.0]
     map_rmse = math.sqrt(sum(e * e for e in map_err.values() if e is not None) /
                          max(1, len([e for e in map_err.values() if e is not None])))
