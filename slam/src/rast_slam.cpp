@@ -601,6 +601,7 @@ RastSlam::statistics() const
   s.memory_bytes["loop_dense_targets"] = loop_memory.dense_targets;
   s.memory_bytes["loop_dense_targets_on_disk"] = loop_memory.dense_targets_on_disk;
   s.memory_bytes["loop_appearance_index"] = loop_memory.appearance_index;
+  s.memory_bytes["loop_appearance_keys"] = loop_memory.appearance_keys;
   s.memory_bytes["loop_appearance_features"] = loop_memory.appearance_features;
   std::lock_guard<std::mutex> lock(impl_->stats_mutex);
   s.skipped_frames = impl_->skipped;

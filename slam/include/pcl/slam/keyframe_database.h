@@ -103,6 +103,7 @@ public:
     std::size_t dense_targets = 0;         ///< in memory
     std::size_t dense_targets_on_disk = 0; ///< spilled to disk
     std::size_t appearance_index = 0;    ///< the substring buckets
+    std::size_t appearance_keys = 0;     ///< the bucket of each key (fixed: 4 MB)
     std::size_t appearance_features = 0; ///< the indexed descriptors, packed for scoring
   };
   MemoryUsage
@@ -167,11 +168,12 @@ private:
     double travel_m = 0.0;
   };
   /// Global indices of the features sharing one substring; a bucket that outgrew
-  /// max_bucket_size is only marked (retrieval skips it whatever the database size).
+  /// max_bucket_size is only marked (retrieval skips it whatever the database size):
+  /// its list is emptied, and a bucket is never empty otherwise.
   struct Bucket
   {
     std::vector<std::uint32_t> features;
-    bool saturated = false;
+    bool saturated() const { return features.empty(); }
   };
 
   /// The poses of one query: the source's snapshot, or empty (the entries' own).
@@ -202,18 +204,29 @@ private:
   std::optional<Tail> tail_;
   std::size_t skipped_ = 0;
   std::unordered_map<KeyFrameId, std::size_t> slot_of_;
-  /// An indexed feature as scoring reads it: packed in one array by global feature
-  /// index, so that a bucket's candidates cost one memory access each rather than a
-  /// walk through their key-frame's vectors (the retrieval's hot loop).
+  /// An indexed feature as scoring reads it, by global feature index, in two arrays
+  /// rather than a walk through their key-frame's vectors (the retrieval's hot loop).
+  /// A bucket's candidate costs one cache line: its descriptor, 32-byte aligned. Its
+  /// slot and angle are read only for the few within retrieval_max_hamming bits.
+  struct alignas(32) IndexedDescriptor
+  {
+    OrbDescriptor bits;
+  };
   struct IndexedFeature
   {
-    OrbDescriptor descriptor;
     float angle_deg = 0.0f;
     std::uint32_t slot = 0;
   };
-  std::vector<IndexedFeature> features_; ///< by global feature index
-  /// key (table << 16 | substring) -> bucket
-  std::unordered_map<std::uint32_t, Bucket> buckets_;
+  std::vector<IndexedDescriptor> descriptors_; ///< by global feature index
+  std::vector<IndexedFeature> features_;       ///< by global feature index
+  /// The buckets in order of creation, and the one of each key (table << 16 |
+  /// substring) plus one, 0 where none: a look-up is one array read. The array takes
+  /// 4 bytes per possible key (4 MB for 16 tables) from the first feature indexed;
+  /// the hash map it replaced took some 70 bytes per bucket, and a session of 1000
+  /// key-frames fills most keys.
+  std::vector<Bucket> buckets_;
+  std::vector<std::uint32_t> bucket_of_key_;
+  const Bucket* bucketOf(std::uint32_t key) const;
 };
 
 } // namespace rast

@@ -157,7 +157,8 @@ struct SlamStatistics
   std::size_t loop_database_revisits_culled = 0;
   /// Approximate heap bytes by part: "map_clouds", "keyframe_clouds", "features",
   /// "map_points", "frames" (the map) and "loop_dense_targets",
-  /// "loop_appearance_index", "loop_appearance_features" (the loop database); "map_clouds_on_disk" and
+  /// "loop_appearance_index", "loop_appearance_keys", "loop_appearance_features" (the
+  /// loop database); "map_clouds_on_disk" and
   /// "loop_dense_targets_on_disk" count what was spilled (SlamParams::spill_directory).
   std::map<std::string, std::size_t> memory_bytes;
   std::map<std::string, std::size_t> tracking_status; ///< frames per tracking status
