@@ -103,7 +103,7 @@ public:
     std::size_t dense_targets = 0;         ///< in memory
     std::size_t dense_targets_on_disk = 0; ///< spilled to disk
     std::size_t appearance_index = 0;    ///< the substring buckets
-    std::size_t appearance_keys = 0;     ///< the bucket of each key (fixed: 4 MB)
+    std::size_t appearance_keys = 0;     ///< the bucket of each key (4 MB with 16 tables)
     std::size_t appearance_features = 0; ///< the indexed descriptors, packed for scoring
   };
   MemoryUsage
