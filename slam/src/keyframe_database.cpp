@@ -37,6 +37,9 @@ using slam_detail::rotationDeg;
 /// miss: the ones a few steps ahead are fetched while this one is checked (a ranking
 /// 1.4-2 times faster: BM_AppearanceRetrieval, and a scan ranked against a 921-key-frame
 /// simulated session), and a visit reads its descriptor's cache line only.
+/// How many visits ahead the scoring fetches a descriptor, or a close feature's record.
+constexpr std::size_t kPrefetchAhead = 8;
+
 using BucketScanFn = void (*)(const std::vector<std::uint32_t>& bucket,
                               const unsigned char* descriptors,
                               const OrbDescriptor& query,
@@ -52,11 +55,11 @@ scanBucketWith(const std::vector<std::uint32_t>& bucket,
                std::vector<std::pair<std::uint32_t, int>>& near,
                Distance distance)
 {
-  constexpr std::size_t kAhead = 8;
   const std::size_t n = bucket.size();
   for (std::size_t j = 0; j < n; ++j) {
-    if (j + kAhead < n)
-      __builtin_prefetch(descriptors + 32 * static_cast<std::size_t>(bucket[j + kAhead]));
+    if (j + kPrefetchAhead < n)
+      __builtin_prefetch(descriptors +
+                         32 * static_cast<std::size_t>(bucket[j + kPrefetchAhead]));
     const int d = distance(query, descriptors + 32 * static_cast<std::size_t>(bucket[j]));
     if (d <= max_distance)
       near.emplace_back(bucket[j], d);
@@ -480,10 +483,9 @@ KeyFrameDatabase::scoreAppearance(const KeyFrame& query,
           bucket->features, indexed, descriptors[i], params_.retrieval_max_hamming, near);
       // A third of a bucket's features may lie within retrieval_max_hamming bits (the
       // rasters' ORB descriptors are alike): their slots are fetched ahead as well.
-      constexpr std::size_t kAhead = 8;
       for (std::size_t k = 0; k < near.size(); ++k) {
-        if (k + kAhead < near.size())
-          __builtin_prefetch(&features_[near[k + kAhead].first]);
+        if (k + kPrefetchAhead < near.size())
+          __builtin_prefetch(&features_[near[k + kPrefetchAhead].first]);
         const IndexedFeature& feature = features_[near[k].first];
         if (!eligible[feature.slot])
           continue;
