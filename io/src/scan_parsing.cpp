@@ -34,7 +34,7 @@ constexpr std::uint64_t kMaxLzfRatio = 100;
 class HeaderLines
 {
 public:
-  HeaderLines(const std::string& path, const std::string& bytes, const char* format)
+  HeaderLines(const std::string& path, std::string_view bytes, const char* format)
       : path_(path), bytes_(bytes), format_(format)
   {}
 
@@ -44,14 +44,14 @@ public:
     if (pos_ >= bytes_.size())
       return false;
     const std::size_t end = bytes_.find('\n', pos_);
-    const std::size_t stop = end == std::string::npos ? bytes_.size() : end;
+    const std::size_t stop = end == std::string_view::npos ? bytes_.size() : end;
     if (stop - pos_ > kMaxHeaderLineBytes)
       fail("header line " + std::to_string(line_number_ + 1) + " is longer than " +
            std::to_string(kMaxHeaderLineBytes) + " bytes");
-    line = std::string_view(bytes_).substr(pos_, stop - pos_);
+    line = bytes_.substr(pos_, stop - pos_);
     if (!line.empty() && line.back() == '\r')
       line.remove_suffix(1);
-    pos_ = end == std::string::npos ? bytes_.size() : end + 1;
+    pos_ = end == std::string_view::npos ? bytes_.size() : end + 1;
     ++line_number_;
     if (pos_ > kMaxHeaderBytes)
       fail("header is longer than " + std::to_string(kMaxHeaderBytes) + " bytes");
@@ -69,7 +69,7 @@ public:
 
 private:
   const std::string& path_;
-  const std::string& bytes_;
+  std::string_view bytes_;
   const char* format_;
   std::size_t pos_ = 0;
   std::size_t line_number_ = 0;
@@ -231,13 +231,14 @@ parseAsciiPoints(HeaderLines& lines, pcl::PCLPointCloud2& blob, std::uint64_t nu
                std::to_string(num_points) + " points the header declares");
 }
 
-/// Size blob.data for \a num_points after checking the total against the limits.
+/// Fail unless \a num_points of blob.point_step bytes stay within the limits and
+/// \a available bytes can hold them (min_bytes_per_point each).
 void
-allocatePoints(const HeaderLines& lines,
-               pcl::PCLPointCloud2& blob,
-               std::uint64_t num_points,
-               std::uint64_t available,
-               std::uint64_t min_bytes_per_point)
+checkPointCount(const HeaderLines& lines,
+                const pcl::PCLPointCloud2& blob,
+                std::uint64_t num_points,
+                std::uint64_t available,
+                std::uint64_t min_bytes_per_point)
 {
   if (num_points > kMaxScanDataBytes / blob.point_step)
     lines.fail(std::to_string(num_points) + " points of " +
@@ -246,6 +247,17 @@ allocatePoints(const HeaderLines& lines,
   if (min_bytes_per_point > 0 && num_points > available / min_bytes_per_point)
     lines.fail("truncated data: the header declares " + std::to_string(num_points) +
                " points but only " + std::to_string(available) + " bytes follow");
+}
+
+/// Size blob.data for \a num_points after checking the total against the limits.
+void
+allocatePoints(const HeaderLines& lines,
+               pcl::PCLPointCloud2& blob,
+               std::uint64_t num_points,
+               std::uint64_t available,
+               std::uint64_t min_bytes_per_point)
+{
+  checkPointCount(lines, blob, num_points, available, min_bytes_per_point);
   blob.data.assign(static_cast<std::size_t>(num_points * blob.point_step), 0);
 }
 
@@ -378,7 +390,7 @@ pcdLayout(const HeaderLines& lines, PcdHeader& h, pcl::PCLPointCloud2& blob)
 /// binary_compressed: LZF of the point data stored field by field, unpacked to points.
 void
 pcdCompressedBody(const HeaderLines& lines,
-                  const std::string& bytes,
+                  std::string_view bytes,
                   std::size_t data_idx,
                   pcl::PCLPointCloud2& blob)
 {
@@ -498,8 +510,13 @@ readPlyHeader(HeaderLines& lines, std::string& format)
 } // namespace
 
 void
-parsePcd(const std::string& path, const std::string& bytes, pcl::PCLPointCloud2& blob)
+parsePcd(const std::string& path,
+         std::string_view bytes,
+         pcl::PCLPointCloud2& blob,
+         std::string_view* binary_data)
 {
+  if (binary_data)
+    *binary_data = {};
   HeaderLines lines(path, bytes, ".pcd");
   PcdHeader header = readPcdHeader(lines);
   pcdLayout(lines, header, blob);
@@ -516,6 +533,11 @@ parsePcd(const std::string& path, const std::string& bytes, pcl::PCLPointCloud2&
     allocatePoints(lines, blob, num_points, available, 2 * values);
     parseAsciiPoints(lines, blob, num_points);
   } else if (header.data == "binary") {
+    if (binary_data) {
+      checkPointCount(lines, blob, num_points, available, blob.point_step);
+      *binary_data = bytes.substr(data_idx, num_points * blob.point_step);
+      return;
+    }
     allocatePoints(lines, blob, num_points, available, blob.point_step);
     std::memcpy(blob.data.data(), bytes.data() + data_idx, blob.data.size());
   } else {
@@ -533,7 +555,7 @@ parsePcd(const std::string& path, const std::string& bytes, pcl::PCLPointCloud2&
 }
 
 void
-parsePly(const std::string& path, const std::string& bytes, pcl::PCLPointCloud2& blob)
+parsePly(const std::string& path, std::string_view bytes, pcl::PCLPointCloud2& blob)
 {
   HeaderLines lines(path, bytes, ".ply");
   std::string_view line;

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <pcl/PCLPointCloud2.h>
 #include <string>
+#include <string_view>
 
 namespace pcl {
 namespace rast {
@@ -19,16 +20,19 @@ namespace io_detail {
 constexpr std::uint64_t kMaxScanDataBytes = std::uint64_t{1} << 30;
 
 /// Parse a whole PCD file (ascii, binary or binary_compressed) held in \a bytes into
-/// \a blob: fields, offsets, width, height and packed point data.
+/// \a blob: fields, offsets, width, height and packed point data. With \a binary_data
+/// not null, points stored as binary stay where they are: *binary_data views exactly
+/// them in \a bytes, and blob.data stays empty (no copy of the scan; else an empty view).
 /// \throws ScanReadError naming \a path and the first thing that is wrong
-void
-parsePcd(const std::string& path, const std::string& bytes, pcl::PCLPointCloud2& blob);
+void parsePcd(const std::string& path,
+              std::string_view bytes,
+              pcl::PCLPointCloud2& blob,
+              std::string_view* binary_data = nullptr);
 
 /// Parse the vertex element of a whole PLY file (ascii, binary little or big endian)
 /// held in \a bytes into \a blob. Elements after the vertices (faces) are not read.
 /// \throws ScanReadError naming \a path and the first thing that is wrong
-void
-parsePly(const std::string& path, const std::string& bytes, pcl::PCLPointCloud2& blob);
+void parsePly(const std::string& path, std::string_view bytes, pcl::PCLPointCloud2& blob);
 
 } // namespace io_detail
 } // namespace rast

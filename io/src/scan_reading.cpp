@@ -3,6 +3,7 @@
 /// per-point time field found, validated and centred (doc/odometry.md).
 
 #include "scan_reading.h"
+
 #include "scan_parsing.h"
 
 #include <algorithm>
@@ -14,11 +15,13 @@
 #include <fstream>
 #include <limits>
 #include <map>
+#include <memory>
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/common/io.h> // getFieldSize
 #include <pcl/io/pose_io.h>
 #include <pcl/io/sequence_reader.h>
 #include <sstream>
+#include <string_view>
 #include <system_error>
 #include <utility>
 
@@ -95,7 +98,7 @@ checkRegularNonEmptyFile(const std::string& path)
 /// KITTI .bin: float32 x y z intensity, 16 bytes per point.
 void
 readKittiBin(const std::string& path,
-             const std::string& bytes,
+             std::string_view bytes,
              pcl::PointCloud<pcl::PointXYZI>& cloud,
              std::size_t& num_dropped)
 {
@@ -288,11 +291,13 @@ struct PointFields
   const pcl::PCLPointField *x, *y, *z, *intensity, *time;
 };
 
-/// The finite points of \a blob appended to \a cloud (written in place), their raw times
-/// to \a times when fields.time is set; kFloat32: every field is float32.
+/// The finite points of \a blob, whose point data starts at \a data, appended to
+/// \a cloud, their raw times to \a times when fields.time is set; kFloat32: every field
+/// is float32.
 template <bool kFloat32>
 void
 convertPoints(const pcl::PCLPointCloud2& blob,
+              const std::uint8_t* data,
               const PointFields& fields,
               pcl::PointCloud<pcl::PointXYZI>& cloud,
               std::size_t& num_dropped,
@@ -310,11 +315,11 @@ convertPoints(const pcl::PCLPointCloud2& blob,
     else
       return fieldAs<double>(pt + f.offset, f.datatype);
   };
+  // Each point constructed once, with its values (a resize would write them twice).
   auto& points = cloud.points;
-  std::size_t n = points.size();
-  points.resize(n + static_cast<std::size_t>(blob.width) * blob.height);
+  points.reserve(points.size() + static_cast<std::size_t>(blob.width) * blob.height);
   for (std::size_t r = 0; r < blob.height; ++r) {
-    const std::uint8_t* row = blob.data.data() + r * blob.row_step;
+    const std::uint8_t* row = data + r * blob.row_step;
     if (fields.time)
       times->startRow();
     for (std::size_t c = 0; c < blob.width; ++c) {
@@ -326,17 +331,12 @@ convertPoints(const pcl::PCLPointCloud2& blob,
         ++num_dropped;
         continue;
       }
-      pcl::PointXYZI& p = points[n++];
-      p.x = x;
-      p.y = y;
-      p.z = z;
       const float intensity = fields.intensity ? value(pt, *fields.intensity) : 0.0f;
-      p.intensity = std::isfinite(intensity) ? intensity : 0.0f;
+      points.emplace_back(x, y, z, std::isfinite(intensity) ? intensity : 0.0f);
       if (fields.time)
         times->add(time(pt, *fields.time));
     }
   }
-  points.resize(n);
 }
 
 /// Convert a PCD/PLY blob to x y z intensity, whatever the field types are; when
@@ -345,6 +345,7 @@ convertPoints(const pcl::PCLPointCloud2& blob,
 void
 blobToCloud(const std::string& path,
             const pcl::PCLPointCloud2& blob,
+            std::string_view data,
             pcl::PointCloud<pcl::PointXYZI>& cloud,
             std::size_t& num_dropped,
             RawTimes* times)
@@ -366,7 +367,7 @@ blobToCloud(const std::string& path,
   }
   if (blob.height > 0 &&
       (blob.row_step < static_cast<std::size_t>(blob.width) * blob.point_step ||
-       blob.data.size() < static_cast<std::size_t>(blob.row_step) * blob.height))
+       data.size() < static_cast<std::size_t>(blob.row_step) * blob.height))
     throw ScanReadError(path, "point data is shorter than the header says");
 
   // A bad time field costs the times, not the scan.
@@ -387,44 +388,62 @@ blobToCloud(const std::string& path,
     return !f || f->datatype == pcl::PCLPointField::FLOAT32;
   };
   const PointFields fields{fx, fy, fz, fi, ft};
+  const auto* points = reinterpret_cast<const std::uint8_t*>(data.data());
   if (isFloat32(fx) && isFloat32(fy) && isFloat32(fz) && isFloat32(fi) && isFloat32(ft))
-    convertPoints<true>(blob, fields, cloud, num_dropped, times);
+    convertPoints<true>(blob, points, fields, cloud, num_dropped, times);
   else
-    convertPoints<false>(blob, fields, cloud, num_dropped, times);
+    convertPoints<false>(blob, points, fields, cloud, num_dropped, times);
 }
 
+/// A whole file's bytes, left uninitialized until the read fills them (a scan is
+/// megabytes, and zero-filling them first cost as much as a copy).
+struct FileBytes
+{
+  std::unique_ptr<char[]> data;
+  std::size_t size = 0;
+  std::string_view view() const { return {data.get(), size}; }
+};
+
 /// The whole file in memory, read with one call.
-std::string
+FileBytes
 readWholeFile(const std::string& path, std::uintmax_t size_bytes)
 {
-  std::string bytes(static_cast<std::size_t>(size_bytes), '\0');
+  FileBytes bytes;
+  bytes.size = static_cast<std::size_t>(size_bytes);
+  bytes.data.reset(new char[bytes.size]);
   std::ifstream in(path, std::ios::binary);
   if (!in)
     throw ScanReadError(path, "cannot open file for reading");
-  in.read(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-  if (in.gcount() != static_cast<std::streamsize>(bytes.size()))
+  in.read(bytes.data.get(), static_cast<std::streamsize>(bytes.size));
+  if (in.gcount() != static_cast<std::streamsize>(bytes.size))
     throw ScanReadError(path,
                         "read only " + std::to_string(in.gcount()) + " of " +
                             std::to_string(size_bytes) + " bytes");
   return bytes;
 }
 
-/// Parse a PCD or PLY file's bytes and convert them; \a times as in blobToCloud().
+/// Parse a PCD or PLY file's bytes and convert them; \a times as in blobToCloud(). A
+/// binary PCD's points are converted where they lie in \a bytes.
 void
 readPclBytes(const std::string& path,
              const std::string& ext,
-             const std::string& bytes,
+             std::string_view bytes,
              pcl::PointCloud<pcl::PointXYZI>& cloud,
              std::size_t& num_dropped,
              PointTimes* times)
 {
   pcl::PCLPointCloud2 blob;
+  std::string_view binary;
   if (ext == ".pcd")
-    parsePcd(path, bytes, blob);
+    parsePcd(path, bytes, blob, &binary);
   else
     parsePly(path, bytes, blob);
+  const std::string_view data =
+      binary.data() ? binary
+                    : std::string_view(reinterpret_cast<const char*>(blob.data.data()),
+                                       blob.data.size());
   RawTimes raw;
-  blobToCloud(path, blob, cloud, num_dropped, times ? &raw : nullptr);
+  blobToCloud(path, blob, data, cloud, num_dropped, times ? &raw : nullptr);
   if (!times)
     return;
   times->warning = raw.warning;
@@ -437,7 +456,7 @@ readPclBytes(const std::string& path,
 pcl::PointCloud<pcl::PointXYZI>::Ptr
 scanFromBytes(const std::string& path,
               const std::string& ext,
-              const std::string& bytes,
+              std::string_view bytes,
               std::size_t* num_dropped_non_finite,
               PointTimes* times)
 {
@@ -468,8 +487,8 @@ readScanAndTimes(const std::string& path,
     throw ScanReadError(
         path, "unsupported scan extension '" + ext + "' (expected .bin, .pcd or .ply)");
   const std::uintmax_t size_bytes = checkRegularNonEmptyFile(path);
-  return scanFromBytes(path, ext, readWholeFile(path, size_bytes), num_dropped_non_finite,
-                       times);
+  const FileBytes bytes = readWholeFile(path, size_bytes);
+  return scanFromBytes(path, ext, bytes.view(), num_dropped_non_finite, times);
 }
 
 } // namespace io_detail

@@ -7,6 +7,7 @@
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace pcl {
@@ -33,7 +34,7 @@ bool isScanExtension(const std::string& ext);
 /// \throws ScanReadError naming \a path
 pcl::PointCloud<pcl::PointXYZI>::Ptr scanFromBytes(const std::string& path,
                                                    const std::string& ext,
-                                                   const std::string& bytes,
+                                                   std::string_view bytes,
                                                    std::size_t* num_dropped_non_finite,
                                                    PointTimes* times);
 
