@@ -69,6 +69,17 @@ fastSqrt(float v)
   return v * inv;
 }
 
+/// std::lrintf(v) for |v| < 2^22, without the library call that gcc keeps for it
+/// (-fmath-errno): the nearest integer, ties to even. Adding 1.5 * 2^23 leaves no
+/// fraction to a float, so the sum itself is rounded so, as lrintf rounds in the
+/// default mode.
+inline std::int32_t
+roundSmall(float v)
+{
+  constexpr float kShift = 12582912.0f; // 1.5 * 2^23
+  return static_cast<std::int32_t>((v + kShift) - kShift);
+}
+
 } // namespace fast_math
 } // namespace rast
 } // namespace pcl

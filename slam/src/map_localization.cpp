@@ -3,6 +3,7 @@
 /// the odometry, aligned to the map's key-frames, placed anew by SessionLocalizer when
 /// lost or kidnapped (session_localizer.h, doc/session.md).
 
+#include "fast_math.h"
 #include "stage_util.h"
 #include "work_queue.h"
 
@@ -713,10 +714,11 @@ struct MapLocalization::Impl
             std::abs(p.z()) < kMaxM))
         continue; // also NaN
       const float t = u.timed ? ((*times)[i] - u.time_min_s) * time_scale : 0.0f;
-      u.points.push_back({static_cast<std::int16_t>(std::lrintf(100.0f * p.x())),
-                          static_cast<std::int16_t>(std::lrintf(100.0f * p.y())),
-                          static_cast<std::int16_t>(std::lrintf(100.0f * p.z())),
-                          static_cast<std::uint16_t>(std::lrintf(t))});
+      u.points.push_back(
+          {static_cast<std::int16_t>(fast_math::roundSmall(100.0f * p.x())),
+           static_cast<std::int16_t>(fast_math::roundSmall(100.0f * p.y())),
+           static_cast<std::int16_t>(fast_math::roundSmall(100.0f * p.z())),
+           static_cast<std::uint16_t>(fast_math::roundSmall(t))});
     }
     unconfirmed.push_back(std::move(u));
     while (unconfirmed.size() > static_cast<std::size_t>(params.backtrack_frames))
