@@ -197,6 +197,12 @@ run(int argc, char** argv)
   args.addInt("far-lag",
               "far from the map: attempts taken N frames later",
               &params.far_placement_lag);
+  args.addDouble("leaving-corridor",
+                 "where the map stops confirming the pose and no session key-frame lies "
+                 "ahead (within -map-radius, and this close to the line of the motion), "
+                 "the drive is leaving the map: its attempts back off at once, in the "
+                 "background [m] (0: every loss tries every frame first)",
+                 &params.leaving_map_corridor_m);
   args.addInt("backtrack",
               "after a placement, align up to N frames before it that the map did not "
               "confirm backwards to the map (written with backtracked=1 in status.csv; "
@@ -586,6 +592,7 @@ run(int argc, char** argv)
       {"far_drift_ratio", params.far_drift_ratio},
       {"far_every", params.far_placement_every},
       {"far_lag", params.far_placement_lag},
+      {"leaving_map_corridor_m", params.leaving_map_corridor_m},
       {"backtrack_frames", params.backtrack_frames},
       {"tentative_by_alignment", params.confirm_tentative_by_alignment},
       {"tried", placements_tried}};

@@ -153,6 +153,9 @@ MapLocalizationParams::isValid(std::string* why) const
                 std::to_string(tentative_window_frames) + ")");
   if (backtrack_frames < 0)
     return fail("backtrack_frames must be >= 0, got " + std::to_string(backtrack_frames));
+  if (!(leaving_map_corridor_m >= 0.0) || !std::isfinite(leaving_map_corridor_m))
+    return fail("leaving_map_corridor_m must be finite and >= 0, got " +
+                std::to_string(leaving_map_corridor_m));
   return true;
 }
 
@@ -387,6 +390,32 @@ struct MapLocalization::Impl
     }
     return nearest;
   }
+
+  /// Whether a drive at \a predicted, the map's last motion \a step, leaves the map
+  /// where it ends (MapLocalizationParams::leaving_map_corridor_m): it moves, and no
+  /// session key-frame lies ahead within map_radius_m and the corridor.
+  bool leavingMap(const Pose3d& predicted, const Pose3d& step) const
+  {
+    if (!(params.leaving_map_corridor_m > 0.0))
+      return false;
+    const Eigen::Vector3d motion = predicted.linear() * step.translation();
+    if (motion.norm() < kLeavingMinStepM)
+      return false; // standing: it leaves nothing
+    const Eigen::Vector3d ahead = motion.normalized();
+    for (const KeyFrame::Ptr& kf : localizer.session().keyframes) {
+      if (sessionComponentOf(localizer.session(), kf->id) != 0)
+        continue; // a separate map in another frame
+      const Eigen::Vector3d d =
+          kf->T_world_keyframe.translation() - predicted.translation();
+      const double along = d.dot(ahead);
+      if (along > 0.0 && along <= params.map_radius_m &&
+          (d - along * ahead).norm() <= params.leaving_map_corridor_m)
+        return false;
+    }
+    return true;
+  }
+  /// Slower than this a frame (0.5 m/s at 10 Hz), a drive is taken as standing.
+  static constexpr double kLeavingMinStepM = 0.05;
 
   /// The back-off's attempt interval and background lag, \a far from the map or not:
   /// never more often or sooner far from the map than near it.
@@ -1480,7 +1509,14 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
   // The map did not confirm the prediction (or there is none): the odometry carries
   // the pose from here, and the scan is placed anew with its features. Features the
   // odometry could not compensate yet (its first two frames) are computed again from
-  // the compensated scan.
+  // the compensated scan. A drive that left the map where it ends starts backed off.
+  if (m.previous_confirmed && predicted && velocity_step &&
+      m.params.placement_backoff_after > 0 &&
+      m.failed_placements < m.params.placement_backoff_after &&
+      m.leavingMap(*predicted, *velocity_step)) {
+    m.failed_placements = m.params.placement_backoff_after;
+    why += "; no key-frame of the map ahead: leaving it, attempts backed off";
+  }
   if (!odo)
     track();
   // A placement started in the background is taken once its lag has passed: recorded

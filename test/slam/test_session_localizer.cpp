@@ -1490,6 +1490,72 @@ TEST(MapLocalization, SkippedScansAreCarriedByTheLastMotion)
 /// A VLP-16 scan pairs few corners with any one key-frame of the map. Verified with the
 /// key-frames around a candidate as well, where each one alone fails, more scans are
 /// placed, none wrong, and another world still places nothing.
+/// A drive that leaves the map where it ends (MapLocalizationParams::
+/// leaving_map_corridor_m): frames 20-79 of the lap, of which the map holds 0-39. Once
+/// the map stops confirming the pose, no key-frame lies ahead, and the attempts back off
+/// at once, in the background; with the corridor 0 the first ones try every frame on the
+/// tracking thread, as after a jump.
+TEST(MapLocalization, ADriveLeavingTheMapWhereItEndsBacksOffAtOnce)
+{
+  const MappedLoop m = mapLoop(true, 40);
+  std::vector<OdometryInput> drive;
+  for (std::size_t i = 20; i < 80; ++i)
+    drive.push_back({simulateFrame(*m.sim, i), m.sim->timestamp(i), i - 20, {}});
+  for (const double corridor : {10.0, 0.0}) {
+    MapLocalizationParams params;
+    params.leaving_map_corridor_m = corridor;
+    MapLocalization localization(*m.localizer, m.odometry, params);
+    int localized = 0, exit_frame = -1, at_once_after_exit = 0, in_background = 0;
+    bool said_leaving = false;
+    for (std::size_t k = 0; k < drive.size(); ++k) {
+      const OdometryInput& s = drive[k];
+      const LocalizationFrame f =
+          k + 1 < drive.size()
+              ? localization.addScan(
+                    s.cloud, s.timestamp_s, s.frame_index, {}, drive[k + 1])
+              : localization.addScan(s.cloud, s.timestamp_s, s.frame_index);
+      if (f.status == LocalizationStatus::kLocalized) {
+        ++localized;
+        EXPECT_LT((f.T_world_lidar.translation() - m.truth(20 + k).translation()).norm(),
+                  0.5)
+            << "frame " << 20 + k << ": " << f.message;
+        continue;
+      }
+      if (localized == 0)
+        continue; // the cold start
+      if (exit_frame < 0)
+        exit_frame = static_cast<int>(20 + k);
+      said_leaving |=
+          f.message.find("leaving it, attempts backed off") != std::string::npos;
+      const bool started =
+          f.message.find("started in the background") != std::string::npos;
+      at_once_after_exit += f.placement_tried && !started ? 1 : 0;
+      in_background += started ? 1 : 0;
+    }
+    std::printf("simulated: corridor %.0f m: %d frames localized, the map stopped "
+                "confirming at frame %d; %d attempts on the tracking thread after it, "
+                "%d in the background\n",
+                corridor,
+                localized,
+                exit_frame,
+                at_once_after_exit,
+                in_background);
+    ASSERT_GT(localized, 10) << "the drive was not tracked on the map";
+    ASSERT_GE(exit_frame, 40) << "the map stopped confirming before its end";
+    if (corridor > 0.0) {
+      EXPECT_TRUE(said_leaving);
+      EXPECT_EQ(at_once_after_exit, 0);
+      EXPECT_GT(in_background, 0);
+    } else {
+      EXPECT_FALSE(said_leaving);
+      EXPECT_GT(at_once_after_exit, 0);
+    }
+  }
+  MapLocalizationParams bad;
+  bad.leaving_map_corridor_m = -1.0;
+  EXPECT_THROW(MapLocalization(*m.localizer, m.odometry, bad), std::invalid_argument);
+}
+
 TEST(MapLocalization, TheFirstAttemptsVerifyNeighbourhoods)
 {
   // A localizer set to verify no neighbourhoods (the HDL-64 preset's setting): cold

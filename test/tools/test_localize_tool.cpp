@@ -323,6 +323,8 @@ TEST_F(LocalizeTool, BadSessionsAndArgumentsAreRefusedBeforeAnyWork)
         std::pair{"-place-neighbours -1", "-place-neighbours -1 (>= 0)"},
         std::pair{"-place-polar -2", "-place-polar -2 (>= 0)"},
         std::pair{"-place-backoff -1", "placement_backoff_after must be >= 0"},
+        std::pair{"-leaving-corridor -1",
+                  "leaving_map_corridor_m must be finite and >= 0"},
         std::pair{"-dense-points 5", "-dense-points 5 (>= 10)"}}) {
     EXPECT_EQ(run("-session " + quoted(m.session) + input + " -output " + quoted(out) +
                   " " + flag),

@@ -436,6 +436,15 @@ struct MapLocalizationParams
   double far_drift_ratio = 0.2;
   int far_placement_every = 8;
   int far_placement_lag = 3;
+  /// A drive that leaves the map where it ends: when the map stops confirming the pose
+  /// and no session key-frame lies ahead of the prediction (along the map's last motion,
+  /// within map_radius_m, and within leaving_map_corridor_m of that line), the attempts
+  /// back off at once (placement_backoff_after), in the background, instead of one a
+  /// frame on the tracking thread. A jump or a loss on the map, with key-frames ahead,
+  /// tries every frame as before. Simulated KITTI 05 second drive: the 20 attempts after
+  /// each of its 3 exits took 1.8 of its 14.4 s (doc/session.md, "Session 61"). 0: every
+  /// loss tries every frame first.
+  double leaving_map_corridor_m = 10.0;
   /// After a placement, the frames just before it that the map did not confirm are
   /// localized after the fact: each, nearest first, is aligned to the map from the pose
   /// of the frame after it moved back by the odometry, to the nearest key-frames one by
