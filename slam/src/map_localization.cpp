@@ -368,6 +368,14 @@ struct MapLocalization::Impl
            (!previous_confirmed && placementDue(far_before));
   }
 
+  /// Whether \a kf is a key-frame of the map the localization is in: of the session's
+  /// main component. A drive a merge could not join is a separate map in a frame of
+  /// its own, which no pose of this localization refers to.
+  bool inMapFrame(const KeyFrame& kf) const
+  {
+    return sessionComponentOf(localizer.session(), kf.id) == 0;
+  }
+
   /// Distance [m] from \a predicted to the nearest session key-frame of the map when
   /// that is farther than the dead reckoning can be off (MapLocalizationParams::
   /// far_radius_m), else none.
@@ -380,8 +388,8 @@ struct MapLocalization::Impl
     // Every key-frame of the map counts, also one without a cloud or features that no
     // placement can use: near it the usual schedule holds, the safer side.
     for (const KeyFrame::Ptr& kf : localizer.session().keyframes) {
-      if (sessionComponentOf(localizer.session(), kf->id) != 0)
-        continue; // a separate map in another frame
+      if (!inMapFrame(*kf))
+        continue;
       nearest = std::min(
           nearest,
           (kf->T_world_keyframe.translation() - predicted->translation()).norm());
@@ -403,8 +411,8 @@ struct MapLocalization::Impl
       return false; // standing: it leaves nothing
     const Eigen::Vector3d ahead = motion.normalized();
     for (const KeyFrame::Ptr& kf : localizer.session().keyframes) {
-      if (sessionComponentOf(localizer.session(), kf->id) != 0)
-        continue; // a separate map in another frame
+      if (!inMapFrame(*kf))
+        continue;
       const Eigen::Vector3d d =
           kf->T_world_keyframe.translation() - predicted.translation();
       const double along = d.dot(ahead);
@@ -869,9 +877,8 @@ struct MapLocalization::Impl
   {
     std::vector<std::pair<double, const KeyFrame*>> near;
     for (const KeyFrame::Ptr& kf : localizer.session().keyframes) {
-      if (!sessionHasCloud(localizer.session(), kf->id) ||
-          sessionComponentOf(localizer.session(), kf->id) != 0)
-        continue; // no cloud, or a separate map in another frame
+      if (!sessionHasCloud(localizer.session(), kf->id) || !inMapFrame(*kf))
+        continue;
       const double d =
           (kf->T_world_keyframe.translation() - T_world.translation()).norm();
       if (d <= params.map_radius_m)

@@ -755,8 +755,9 @@ TEST(MapLocalization, ATentativePlacementIsConfirmedByTheNearestKeyFramesTogethe
                 together,
                 confirmed,
                 tracked);
-    if (together == 0)
+    if (together == 0) {
       EXPECT_EQ(confirmed, 0);
+    }
     // Only a placement's confirmation: a confirmed frame's successor is tracked, which
     // one key-frame at a time cannot confirm, and is placed tentatively anew.
     if (together == 1) {
