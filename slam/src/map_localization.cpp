@@ -339,13 +339,20 @@ struct MapLocalization::Impl
                static_cast<std::size_t>(params.tentative_window_frames);
   }
 
+  /// Whether the attempts are backed off: placement_backoff_after of them failed in a
+  /// row (never with the back-off off).
+  bool backedOff() const
+  {
+    return params.placement_backoff_after > 0 &&
+           failed_placements >= params.placement_backoff_after;
+  }
+
   /// Whether this frame tries a placement
   /// (MapLocalizationParams::placement_backoff_after; \a far: its prediction is far from
   /// the map, farFromMap()).
   bool placementDue(bool far) const
   {
-    if (params.placement_backoff_after == 0 ||
-        failed_placements < params.placement_backoff_after)
+    if (!backedOff())
       return true;
     if (pending)
       return false; // the back-off's attempt still runs (one with a longer lag than
@@ -492,8 +499,7 @@ struct MapLocalization::Impl
   bool placeInBackground(bool far) const
   {
     const int lag = placementLag(far);
-    return lag > 0 && placementEvery(far) > lag && params.placement_backoff_after > 0 &&
-           failed_placements >= params.placement_backoff_after && !recentWithinWindow() &&
+    return lag > 0 && placementEvery(far) > lag && backedOff() && !recentWithinWindow() &&
            !pending;
   }
 
@@ -1518,8 +1524,7 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
   // odometry could not compensate yet (its first two frames) are computed again from
   // the compensated scan. A drive that left the map where it ends starts backed off.
   if (m.previous_confirmed && predicted && velocity_step &&
-      m.params.placement_backoff_after > 0 &&
-      m.failed_placements < m.params.placement_backoff_after &&
+      m.params.placement_backoff_after > 0 && !m.backedOff() &&
       m.leavingMap(*predicted, *velocity_step)) {
     m.failed_placements = m.params.placement_backoff_after;
     why += "; no key-frame of the map ahead: leaving it, attempts backed off";
@@ -1583,10 +1588,8 @@ MapLocalization::Impl::localize(const pcl::PointCloud<pcl::PointXYZI>::ConstPtr&
   bool started_in_background = false;
   const std::optional<PlacementPrior> prior = m.placementPrior(predicted);
   const std::optional<double> far_m =
-      m.params.placement_backoff_after > 0 &&
-              m.failed_placements >= m.params.placement_backoff_after
-          ? m.farFromMap(predicted)
-          : std::nullopt; // only the back-off's schedule depends on it
+      m.backedOff() ? m.farFromMap(predicted)
+                    : std::nullopt; // only the back-off's schedule depends on it
   const bool far = far_m.has_value();
   m.far_now = far;
   // The candidates' neighbourhoods are verified unless the back-off found the

@@ -1488,9 +1488,6 @@ TEST(MapLocalization, SkippedScansAreCarriedByTheLastMotion)
   EXPECT_LT(max_skipped_m, 0.3);
 }
 
-/// A VLP-16 scan pairs few corners with any one key-frame of the map. Verified with the
-/// key-frames around a candidate as well, where each one alone fails, more scans are
-/// placed, none wrong, and another world still places nothing.
 /// A drive that leaves the map where it ends (MapLocalizationParams::
 /// leaving_map_corridor_m): frames 20-79 of the lap, of which the map holds 0-39. Once
 /// the map stops confirming the pose, no key-frame lies ahead, and the attempts back off
@@ -1557,6 +1554,9 @@ TEST(MapLocalization, ADriveLeavingTheMapWhereItEndsBacksOffAtOnce)
   EXPECT_THROW(MapLocalization(*m.localizer, m.odometry, bad), std::invalid_argument);
 }
 
+/// A VLP-16 scan pairs few corners with any one key-frame of the map. Verified with the
+/// key-frames around a candidate as well, where each one alone fails, more scans are
+/// placed, none wrong, and another world still places nothing.
 TEST(MapLocalization, TheFirstAttemptsVerifyNeighbourhoods)
 {
   // A localizer set to verify no neighbourhoods (the HDL-64 preset's setting): cold
