@@ -76,6 +76,8 @@ LoopDetectorParams::isValid(std::string* why) const
     r << "dense: " << sub;
   else if (!(min_dense_overlap >= 0.0 && min_dense_overlap <= 1.0))
     r << "min_dense_overlap must be in [0, 1], got " << min_dense_overlap;
+  else if (min_dense_structure < 0)
+    r << "min_dense_structure must be >= 0, got " << min_dense_structure;
   else if (!positive(dense_inlier_distance_m))
     r << "dense_inlier_distance_m must be finite and > 0, got "
       << dense_inlier_distance_m;

@@ -510,11 +510,16 @@ LoopDetector::verifyPair(const KeyFrame& query,
   v.accepted = true;
   v.verify_ms = t0.getTime();
   v.reason =
-      format("accepted: %.0f inliers (ratio %.2f), dense overlap %.2f, rmse %.3f m",
-             v.num_inliers,
-             v.inlier_ratio,
-             v.dense_overlap,
-             v.dense_rmse_m);
+      v.dense_undecided
+          ? format("accepted: %.0f inliers (ratio %.2f), too little structure for the "
+                   "dense check",
+                   v.num_inliers,
+                   v.inlier_ratio)
+          : format("accepted: %.0f inliers (ratio %.2f), dense overlap %.2f, rmse %.3f m",
+                   v.num_inliers,
+                   v.inlier_ratio,
+                   v.dense_overlap,
+                   v.dense_rmse_m);
   return v;
 }
 
@@ -583,6 +588,11 @@ LoopDetector::denseCheck(const KeyFrame& query,
   }
   v.dense_overlap = structure > 0 ? static_cast<double>(paired) / structure : 0.0;
   v.dense_rmse_m = paired > 0 ? std::sqrt(sum_sq / paired) : 0.0;
+  if (structure < params_.min_dense_structure) {
+    v.dense_undecided = true;
+    v.T_candidate_query = T;
+    return {};
+  }
   if (structure == 0 || v.dense_overlap < min_overlap)
     return format("dense overlap %.2f < %.2f (%.0f structure points)",
                   v.dense_overlap,

@@ -430,12 +430,18 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
     p.dense_overlap = v.dense_overlap;
     p.dense_rmse_m = v.dense_rmse_m;
     char text[120];
-    std::snprintf(text,
-                  sizeof text,
-                  ": %d inliers, dense overlap %.2f, rmse %.3f m",
-                  v.num_inliers,
-                  v.dense_overlap,
-                  v.dense_rmse_m);
+    if (v.dense_undecided)
+      std::snprintf(text,
+                    sizeof text,
+                    ": %d inliers, too little structure for the dense check",
+                    v.num_inliers);
+    else
+      std::snprintf(text,
+                    sizeof text,
+                    ": %d inliers, dense overlap %.2f, rmse %.3f m",
+                    v.num_inliers,
+                    v.dense_overlap,
+                    v.dense_rmse_m);
     p.message = what + text;
   };
   struct Tentative
@@ -479,13 +485,18 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
       note(id, v.reason);
       return false;
     }
-    if (v.num_inliers < min_inliers || tentative_only) {
+    if (v.dense_undecided && params.tentative_min_inliers == 0) {
+      note(id, "too little structure for the dense check, and no tentative placements");
+      return false;
+    }
+    if (v.num_inliers < min_inliers || tentative_only || v.dense_undecided) {
       if (!tentative)
         tentative = Tentative{id, v, "tentatively on " + what};
       note(id,
-           tentative_only ? "tentative, found by the polar descriptor"
-                          : "tentative, " + std::to_string(v.num_inliers) +
-                                " inliers < " + std::to_string(min_inliers));
+           tentative_only      ? "tentative, found by the polar descriptor"
+           : v.dense_undecided ? "tentative, too little structure for the dense check"
+                               : "tentative, " + std::to_string(v.num_inliers) +
+                                     " inliers < " + std::to_string(min_inliers));
       return false;
     }
     p.success = true;

@@ -235,6 +235,11 @@ TEST(LoopDetector, ParamsValidation)
   }
   {
     auto b = p;
+    b.min_dense_structure = -1;
+    expectInvalid(b, "min_dense_structure");
+  }
+  {
+    auto b = p;
     b.min_guess_inliers = 2;
     expectInvalid(b, "min_guess_inliers");
   }
@@ -544,6 +549,68 @@ TEST(LoopDetector, RevisitFoundByDistanceAndVerified)
       EXPECT_LT(translationError(v.T_candidate_query, s.truth(v.candidate, frame)), 0.2);
     }
   }
+}
+
+TEST(LoopDetector, TooLittleStructureLeavesTheDenseCheckUndecided)
+{
+  // A revisit whose query cloud keeps only what lies less than 0.2 m above the road
+  // (1.7 m below the sensor): the road, kerbs, the feet of walls, some 50 structure
+  // points where the full scan holds hundreds. Its features still match the
+  // candidate's, but the share of those points that pair decides by default, and the
+  // pair is refused; with min_dense_structure above their number it passes, undecided,
+  // at the features' pose.
+  const auto& s = scene();
+  const std::size_t frame = LoopScene::kLapFrames + 15; // between key-frames 2 and 3
+  const KeyFrameId candidate = 2;                       // 3 m behind
+  auto query = std::make_shared<KeyFrame>(*s.query(frame, nextId()));
+  auto low = std::make_shared<Cloud>();
+  for (const auto& p : query->cloud->points)
+    if (p.z < -1.5f)
+      low->push_back(p);
+  ASSERT_GT(low->size(), 1000u);
+  query->cloud = low;
+  const Pose3d truth = s.truth(candidate, frame);
+  GuessTolerance tolerance; // no guess
+
+  LoopDetectorParams decides;
+  const LoopVerification refused =
+      LoopDetector(decides).verify(*query, *s.database[candidate], truth, tolerance);
+  std::printf("[ structure ] default: %s\n", refused.reason.c_str());
+  EXPECT_FALSE(refused.accepted);
+  EXPECT_NE(refused.reason.find("dense overlap"), std::string::npos) << refused.reason;
+  EXPECT_FALSE(refused.dense_undecided);
+
+  LoopDetectorParams undecided_params;
+  undecided_params.min_dense_structure = 100;
+  const LoopVerification undecided =
+      LoopDetector(undecided_params)
+          .verify(*query, *s.database[candidate], truth, tolerance);
+  std::printf("[ structure ] min_dense_structure 100: %s (%.3f m, %.2f deg off)\n",
+              undecided.reason.c_str(),
+              translationError(undecided.T_candidate_query, truth),
+              rotationErrorDeg(undecided.T_candidate_query, truth));
+  ASSERT_TRUE(undecided.accepted) << undecided.reason;
+  EXPECT_TRUE(undecided.dense_undecided);
+  EXPECT_NE(undecided.reason.find("too little structure"), std::string::npos);
+  EXPECT_LT(translationError(undecided.T_candidate_query, truth), 0.3);
+  EXPECT_LT(rotationErrorDeg(undecided.T_candidate_query, truth), 1.0);
+
+  // The full scan holds enough structure: the check decides as before, refusing the
+  // pair with key-frame 2 (too little of the scan pairs with it) and accepting it with
+  // key-frame 3 (3 m ahead).
+  const auto full_query = s.query(frame, nextId());
+  const LoopDetector with_floor(undecided_params);
+  const LoopVerification full_2 =
+      with_floor.verify(*full_query, *s.database[candidate], truth, tolerance);
+  std::printf("[ structure ] the full scan with key-frame 2: %s\n",
+              full_2.reason.c_str());
+  EXPECT_FALSE(full_2.accepted);
+  EXPECT_FALSE(full_2.dense_undecided);
+  const LoopVerification full_3 =
+      with_floor.verify(*full_query, *s.database[3], s.truth(3, frame), tolerance);
+  ASSERT_TRUE(full_3.accepted) << full_3.reason;
+  EXPECT_FALSE(full_3.dense_undecided);
+  EXPECT_GE(full_3.dense_overlap, decides.min_dense_overlap);
 }
 
 TEST(LoopDetector, DriftedRevisitNeedsAppearanceRetrieval)

@@ -61,6 +61,15 @@ struct MappedLoop
   fs::path dir;                       ///< the saved session
 
   Pose3d truth(std::size_t i) const { return T0_inv * sim->sensorPose(i); }
+
+  /// Another localizer on the saved session (loaded again, without its clouds).
+  std::unique_ptr<SessionLocalizer>
+  localizerWith(const SessionLocalizerParams& params) const
+  {
+    SessionLoadOptions options;
+    options.load_clouds = false;
+    return std::make_unique<SessionLocalizer>(loadSession(dir.string(), options), params);
+  }
 };
 
 MappedLoop
@@ -1612,10 +1621,7 @@ TEST(SessionLocalizer, ACandidatesNeighboursPlaceSparseScansThatItAloneCannot)
     SessionLocalizerParams params;
     applySensorPreset(SensorPreset::kVlp16, params);
     params.neighbourhood_keyframes = neighbours;
-    SessionLoadOptions options;
-    options.load_clouds = false;
-    return std::make_unique<SessionLocalizer>(loadSession(m.dir.string(), options),
-                                              params);
+    return m.localizerWith(params);
   };
   const auto alone = localizerWith(0);
   const auto together = localizerWith(2);
@@ -1677,6 +1683,58 @@ TEST(SessionLocalizer, ACandidatesNeighboursPlaceSparseScansThatItAloneCannot)
               by_neighbours);
   EXPECT_GT(by_neighbours, 0);
   EXPECT_EQ(placed[1], placed[0] + by_neighbours) << "the first pass is the plain one";
+}
+
+/// A scan whose features place it but which holds too little structure for the dense
+/// check (an open highway's: a guard rail, an embankment) is placed tentatively: another
+/// scan has to agree (MapLocalization). Without tentative placements it is not placed.
+TEST(SessionLocalizer, AScanWithTooLittleStructurePlacesTentatively)
+{
+  const MappedLoop m = mapLoop(false);
+  const auto localizerWith = [&](int tentative_min_inliers) {
+    SessionLocalizerParams params;
+    params.tentative_min_inliers = tentative_min_inliers;
+    return m.localizerWith(params);
+  };
+  const auto with_tentative = localizerWith(20);
+  const auto without = localizerWith(0);
+  int full_placed = 0, tentative = 0;
+  for (std::size_t i = 160; i < 200; i += 4) {
+    // The scan's features as the localizer makes them, from the whole scan ...
+    Odometry front_end(m.odometry);
+    const OdometryFrameResult first =
+        front_end.processFrame(simulateFrame(*m.sim, i), 0.0, 0);
+    ASSERT_TRUE(first.keyframe) << "frame " << i;
+    const Placement full = with_tentative->place(*first.keyframe);
+    full_placed += full.success ? 1 : 0;
+    // ... and a cloud for the dense check with nothing more than 0.1 m above the road
+    // (1.73 m below the sensor): no walls to pair.
+    KeyFrame bare = *first.keyframe;
+    auto low = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
+    for (const pcl::PointXYZI& q : bare.cloud->points)
+      if (q.z < -1.63f)
+        low->push_back(q);
+    bare.cloud = low;
+    const Placement p = with_tentative->place(bare);
+    EXPECT_FALSE(p.success) << "frame " << i << ": " << p.message;
+    if (p.tentative) {
+      ++tentative;
+      EXPECT_NE(p.message.find("too little structure"), std::string::npos) << p.message;
+      const Pose3d gt = m.truth(i);
+      EXPECT_LT((p.T_world_lidar.translation() - gt.translation()).norm(), 0.5)
+          << "frame " << i << ": " << p.message;
+      EXPECT_LT(rotationErrorDeg(p.T_world_lidar, gt), 1.0) << "frame " << i;
+    }
+    const Placement refused = without->place(bare);
+    EXPECT_FALSE(refused.success) << "frame " << i;
+    EXPECT_FALSE(refused.tentative) << "frame " << i << ": " << refused.message;
+  }
+  std::printf("simulated second pass: %d of 10 scans placed whole, %d tentatively with "
+              "their walls cut away\n",
+              full_placed,
+              tentative);
+  EXPECT_GE(full_placed, 9);
+  EXPECT_GE(tentative, 7);
 }
 
 TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)

@@ -172,6 +172,14 @@ struct LoopDetectorParams
   double dense_inlier_distance_m = 0.25;
   /// RMS point-to-plane distance of those paired structure points at most.
   double max_dense_rmse_m = 0.12;
+  /// A query with fewer structure points than this leaves the dense check undecided:
+  /// an open highway (a low guard rail, a sloped embankment) holds 10-20 within the
+  /// crop radius where a street holds hundreds, and a share of so few says nothing
+  /// either way. Such a pair passes the check with LoopVerification::dense_undecided
+  /// set, its pose the refinement's, for the caller to weigh (SessionLocalizer takes it
+  /// as a tentative placement). 0: the share decides however few they are (the loop
+  /// closure's choice: a loop it cannot confirm is left out).
+  int min_dense_structure = 0;
 
   /// After a loop is accepted, its transform is refined once more: the query's whole
   /// cloud at 0.5 m voxels on the candidate's dense target, plane-to-plane (the check
@@ -247,6 +255,9 @@ struct LoopVerification
   double inlier_rmse_m = 0.0; ///< RMS 3D residual of the RANSAC inliers
   double dense_rmse_m = 0.0;  ///< RMS point-to-plane distance of paired structure points
   double dense_overlap = 0.0; ///< fraction of query structure points paired
+  /// The query held too few structure points for the dense check to decide
+  /// (LoopDetectorParams::min_dense_structure): passed on the features' checks alone.
+  bool dense_undecided = false;
   std::string reason;         ///< why rejected, or a short summary when accepted
   // added beyond the contract
   int num_initial_inliers = 0;  ///< first RANSAC inliers among num_matches
