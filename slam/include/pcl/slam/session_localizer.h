@@ -154,8 +154,10 @@ struct Placement
   bool success = false;
   /// Not placed, but a candidate passed every check with at least
   /// tentative_min_inliers guided inliers, or a polar candidate passed them
-  /// (SessionLocalizerParams::polar_candidates): the pose fields below are filled in,
-  /// for a caller that accepts it once another scan's placement agrees with it.
+  /// (SessionLocalizerParams::polar_candidates), or one passed the features' checks
+  /// on a scan too bare for the dense check (LoopVerification::dense_undecided): the
+  /// pose fields below are filled in, for a caller that accepts it once another scan's
+  /// placement agrees with it.
   bool tentative = false;
   /// Pose of the scan's LiDAR frame in the session's world frame (when success).
   Pose3d T_world_lidar = Pose3d::Identity();
