@@ -513,6 +513,18 @@ def multi_session(a, out, gt, session, second_first):
               "%.3f m" % (ms["component"], first_alone, second_alone))
 
 
+def cold_start(a, out, sim, session, f, tool, folder):
+    """pcl_rast_localize on the 3 scans from frame f into out/folder/f: its poses, its
+    status rows and the index of its first placement as the run went (None: none)."""
+    d = os.path.join(out, folder, str(f))
+    tool("pcl_rast_localize", ["-session", session, "-input", sim, "-first", str(f), "-last",
+                               str(f + 2 * a.stride), "-stride", str(a.stride), "-output", d],
+         folder + ".log")
+    rows = statuses(os.path.join(d, "status.csv"))
+    first = next((j for j, r in enumerate(rows) if localized_online(r)), None)
+    return read_kitti(os.path.join(d, "poses_kitti.txt")), rows, first
+
+
 def cold_starts(a, out, sim, session, gt, n, on_map, tool, truth):
     last = 2 * a.stride  # the third scan of the start
     candidates = [i for i in on_map if i + last < n]
@@ -525,13 +537,7 @@ def cold_starts(a, out, sim, session, gt, n, on_map, tool, truth):
     times_s = []
     missed, wrong = [], []
     for f in starts:
-        d = os.path.join(out, "cold", str(f))
-        tool("pcl_rast_localize", ["-session", session, "-input", sim, "-first", str(f), "-last",
-                                   str(f + last), "-stride", str(a.stride), "-output", d],
-             "cold.log")
-        cp = read_kitti(os.path.join(d, "poses_kitti.txt"))
-        cr = statuses(os.path.join(d, "status.csv"))
-        first = next((j for j, r in enumerate(cr) if localized_online(r)), None)
+        cp, cr, first = cold_start(a, out, sim, session, f, tool, "cold")
         if first is None:
             missed.append(f)
             continue
@@ -558,17 +564,10 @@ def cold_starts(a, out, sim, session, gt, n, on_map, tool, truth):
 def cold_starts_off_map(a, out, sim, session, gt, n, off_map, tool):
     """Cold starts where the map holds nothing to find: each placement there is
     checked against ground truth (the map's pose of the place does not exist)."""
-    last = 2 * a.stride
-    starts = [i for i in off_map if i + last < n][::a.cold_off_every]
+    starts = [i for i in off_map if i + 2 * a.stride < n][::a.cold_off_every]
     placed, wrong = [], []
     for f in starts:
-        d = os.path.join(out, "cold_off", str(f))
-        tool("pcl_rast_localize", ["-session", session, "-input", sim, "-first", str(f), "-last",
-                                   str(f + last), "-stride", str(a.stride), "-output", d],
-             "cold_off.log")
-        cp = read_kitti(os.path.join(d, "poses_kitti.txt"))
-        cr = statuses(os.path.join(d, "status.csv"))
-        first = next((j for j, r in enumerate(cr) if localized_online(r)), None)
+        cp, _, first = cold_start(a, out, sim, session, f, tool, "cold_off")
         if first is None:
             continue
         e_gt = dist(position(cp[first]), position(gt[f + first * a.stride]))
