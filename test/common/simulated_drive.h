@@ -4,6 +4,7 @@
 /// simulators on generated paths, and their scans in memory.
 
 #include "temp_cleanup.h"
+#include "test_cache.h"
 
 #include <filesystem>
 #include <memory>
@@ -15,26 +16,30 @@
 
 namespace pcl_rast_test {
 
-/// \brief A 40-frame straight HDL-64 drive (world and noise from \a seed) as KITTI .bin scans with poses.txt
-/// and times.txt, simulated into a fresh temporary folder named by \a tag and the
-/// process (ctest -j runs a binary's test cases in parallel processes), removed when
-/// the process exits.
+/// \brief A 40-frame straight HDL-64 drive (world and noise from \a seed) as KITTI .bin
+/// scans with poses.txt and times.txt, in a fresh temporary folder named by \a tag and
+/// the process (ctest -j runs a binary's test cases in parallel processes), removed when
+/// the process exits. Simulated once per build (test_cache.h) and copied: the tests may
+/// change the copy.
 inline std::filesystem::path
 simulateStraightDrive(const std::string& tag, std::uint64_t seed = 5)
 {
   const std::filesystem::path dir = std::filesystem::temp_directory_path() /
                                     "pcl_rast_test" /
                                     (tag + "_" + std::to_string(::getpid()));
-  std::filesystem::remove_all(dir);
   removeAtExit(dir);
-  pcl::rast::PathParams path;
-  path.type = pcl::rast::PathType::kStraight;
-  path.num_frames = 40;
-  pcl::rast::LidarSimulatorParams params;
-  params.seed = seed;
-  params.num_threads = 2;
-  pcl::rast::LidarSimulator sim(params, pcl::rast::generatePath(path));
-  sim.writeSequence(dir.string(), pcl::rast::ScanFormat::kBin, 0, 39);
+  copyCachedFolder("straight_drive_40_seed" + std::to_string(seed),
+                   dir,
+                   [seed](const std::filesystem::path& out) {
+                     pcl::rast::PathParams path;
+                     path.type = pcl::rast::PathType::kStraight;
+                     path.num_frames = 40;
+                     pcl::rast::LidarSimulatorParams params;
+                     params.seed = seed;
+                     params.num_threads = 2;
+                     pcl::rast::LidarSimulator sim(params, pcl::rast::generatePath(path));
+                     sim.writeSequence(out.string(), pcl::rast::ScanFormat::kBin, 0, 39);
+                   });
   return dir;
 }
 

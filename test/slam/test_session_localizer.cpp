@@ -4,6 +4,7 @@
 
 #include "simulated_drive.h"
 #include "temp_cleanup.h"
+#include "test_cache.h"
 
 #include <algorithm>
 #include <cmath>
@@ -96,20 +97,26 @@ mapLoop(bool load_clouds = true,
     path.revisit_fraction = 0.25;
     m.sim = std::make_unique<LidarSimulator>(sim_params, generatePath(path));
   }
-  SlamParams slam_params;
-  slam_params.deterministic = true;
-  applySensorPreset(preset, slam_params.odometry);
-  RastSlam slam(slam_params);
-  for (std::size_t i = 0; i < mapped; ++i)
-    slam.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
-  slam.finish();
   const fs::path dir = fs::temp_directory_path() / "pcl_rast_test" /
                        ("session_localizer_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
   pcl_rast_test::removeAtExit(dir);
-  SessionInfo info;
-  info.sensor_preset = toString(preset);
-  saveSession(slam, dir.string(), info);
+  // Mapped once per build and copied (test_cache.h): the map is the same in every test
+  // that asks for it (a deterministic run), and making it took 5-10 s each time.
+  const std::string key = std::string("session_localizer_map_") + toString(preset) + "_" +
+                          std::to_string(static_cast<int>(sensor)) + "_" +
+                          std::to_string(mapped);
+  pcl_rast_test::copyCachedFolder(key, dir, [&](const fs::path& out) {
+    SlamParams slam_params;
+    slam_params.deterministic = true;
+    applySensorPreset(preset, slam_params.odometry);
+    RastSlam slam(slam_params);
+    for (std::size_t i = 0; i < mapped; ++i)
+      slam.addScan(simulateFrame(*m.sim, i), m.sim->timestamp(i), i);
+    slam.finish();
+    SessionInfo info;
+    info.sensor_preset = toString(preset);
+    saveSession(slam, out.string(), info);
+  });
 
   SessionLoadOptions options;
   options.load_clouds = load_clouds;
