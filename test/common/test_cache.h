@@ -12,8 +12,6 @@
 /// rebuilt library or test program makes it again, and older ones of the same key are
 /// removed. Each process gets a copy of its own, which its tests may change.
 
-#include "temp_cleanup.h"
-
 #include <cstdint>
 #include <cstdio>
 #include <fcntl.h>
@@ -70,15 +68,17 @@ buildStamp()
   return hex;
 }
 
-/// \brief The folder \a make writes for \a key, made once per build (see the file's
-/// doc) and shared by the test processes: read it, never change it. Without a usable
-/// cache folder (no build folder to write in) it is made in \a fallback.
-inline std::filesystem::path
-cachedFolder(const std::string& key,
-             const std::function<void(const std::filesystem::path&)>& make,
-             const std::filesystem::path& fallback)
+/// \brief Fills \a dir (removed first) with a copy of the folder \a make writes for
+/// \a key, made once per build (see the file's doc) and shared by the test processes;
+/// the tests may change the copy. Without a usable cache folder (no build folder to
+/// write in) \a make writes \a dir itself.
+inline void
+copyCachedFolder(const std::string& key,
+                 const std::filesystem::path& dir,
+                 const std::function<void(const std::filesystem::path&)>& make)
 {
   namespace fs = std::filesystem;
+  fs::remove_all(dir);
   // A folder per test program: each makes its own, and replaces only those.
   std::error_code ec;
   const fs::path root = fs::path(PCL_RAST_BINARY_DIR) / "test_cache" /
@@ -89,9 +89,8 @@ cachedFolder(const std::string& key,
       ec ? -1
          : ::open((root / (key + ".lock")).c_str(), O_CREAT | O_RDWR | O_CLOEXEC, 0644);
   if (lock < 0) {
-    fs::remove_all(fallback);
-    make(fallback);
-    return fallback;
+    make(dir);
+    return;
   }
   struct Unlock
   {
@@ -111,21 +110,6 @@ cachedFolder(const std::string& key,
     make(cached);
     std::ofstream(complete) << key << "\n";
   }
-  return cached;
-}
-
-/// \brief Fills \a dir (removed first) with a copy of cachedFolder(\a key, \a make),
-/// which its tests may change.
-inline void
-copyCachedFolder(const std::string& key,
-                 const std::filesystem::path& dir,
-                 const std::function<void(const std::filesystem::path&)>& make)
-{
-  namespace fs = std::filesystem;
-  fs::remove_all(dir);
-  const fs::path cached = cachedFolder(key, make, dir);
-  if (cached == dir)
-    return;
   fs::copy(cached, dir, fs::copy_options::recursive);
   fs::remove(dir / ".complete");
 }
