@@ -83,7 +83,15 @@ levellingRotation(const pcl::PointCloud<pcl::PointXYZI>& map)
   Eigen::Vector3d up = result.plane_coefficients.head<3>().cast<double>().normalized();
   if (up.z() < 0.0)
     up = -up;
-  return Eigen::Quaterniond::FromTwoVectors(up, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  // The shortest rotation of up onto z. up.z() >= 0, so never the half turn for which
+  // Quaterniond::FromTwoVectors instantiates an SVD (3.4 s of this file's compile in
+  // clang's -ftime-trace).
+  const Eigen::Vector3d axis = up.cross(Eigen::Vector3d::UnitZ());
+  const double sin_angle = axis.norm();
+  if (sin_angle < 1e-12)
+    return Eigen::Matrix3d::Identity();
+  return Eigen::AngleAxisd(std::atan2(sin_angle, up.z()), axis / sin_angle)
+      .toRotationMatrix();
 }
 
 /// The map as the picture needs it, gathered tile by tile while map.pcd is written:
