@@ -17,6 +17,7 @@
 #include <pcl/slam/rast_slam.h>
 #include <pcl/slam/session.h>
 #include <pcl/slam/session_localizer.h>
+#include <random>
 #include <string>
 #include <tuple>
 #include <utility>
