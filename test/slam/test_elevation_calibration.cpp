@@ -168,15 +168,12 @@ driveWithBiasedBeams()
     const std::size_t hi = static_cast<std::size_t>(
         std::lower_bound(sorted_deg.begin(), sorted_deg.end(), elevation_deg) -
         sorted_deg.begin());
-    std::size_t best = by_elevation[std::min(hi, sorted_deg.size() - 1)];
-    for (std::size_t k = hi == 0 ? 0 : hi - 1; k <= hi && k < sorted_deg.size(); ++k) {
-      const std::size_t b = by_elevation[k];
-      const double d = std::abs(drive.beam_elevation_deg[b] - elevation_deg);
-      const double d_best = std::abs(drive.beam_elevation_deg[best] - elevation_deg);
-      if (d < d_best || (d == d_best && b < best))
-        best = b;
-    }
-    return best;
+    if (hi == 0 || hi == sorted_deg.size())
+      return by_elevation[hi == 0 ? 0 : hi - 1];
+    const std::size_t below = by_elevation[hi - 1], above = by_elevation[hi];
+    const double d_below = elevation_deg - sorted_deg[hi - 1];
+    const double d_above = sorted_deg[hi] - elevation_deg;
+    return d_below < d_above || (d_below == d_above && below < above) ? below : above;
   };
   // Windows of 25 frames: 11 updates in this drive (50 would give 5).
   pcl::rast::OdometryParams on;
