@@ -76,6 +76,10 @@ LoopDetectorParams::isValid(std::string* why) const
     r << "dense: " << sub;
   else if (!(min_dense_overlap >= 0.0 && min_dense_overlap <= 1.0))
     r << "min_dense_overlap must be in [0, 1], got " << min_dense_overlap;
+  else if (!(tentative_dense_overlap < 0.0 ||
+             tentative_dense_overlap <= min_dense_overlap))
+    r << "tentative_dense_overlap must be negative (none) or at most min_dense_overlap ("
+      << min_dense_overlap << "), got " << tentative_dense_overlap;
   else if (min_dense_structure < 0)
     r << "min_dense_structure must be >= 0, got " << min_dense_structure;
   else if (!positive(dense_inlier_distance_m))

@@ -593,11 +593,15 @@ LoopDetector::denseCheck(const KeyFrame& query,
     v.T_candidate_query = T;
     return {};
   }
-  if (structure == 0 || v.dense_overlap < min_overlap)
-    return format("dense overlap %.2f < %.2f (%.0f structure points)",
-                  v.dense_overlap,
-                  min_overlap,
-                  structure);
+  if (structure == 0 || v.dense_overlap < min_overlap) {
+    if (structure == 0 || params_.tentative_dense_overlap < 0.0 ||
+        v.dense_overlap < params_.tentative_dense_overlap)
+      return format("dense overlap %.2f < %.2f (%.0f structure points)",
+                    v.dense_overlap,
+                    min_overlap,
+                    structure);
+    v.dense_short = true;
+  }
   if (v.dense_rmse_m > params_.max_dense_rmse_m)
     return format("dense rmse %.3f m > %.3f m", v.dense_rmse_m, params_.max_dense_rmse_m);
   v.T_candidate_query = T;

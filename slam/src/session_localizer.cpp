@@ -485,18 +485,29 @@ SessionLocalizer::Impl::place(const KeyFrame& query_in,
       note(id, v.reason);
       return false;
     }
-    if (v.dense_undecided && params.tentative_min_inliers == 0) {
-      note(id, "too little structure for the dense check, and no tentative placements");
+    if ((v.dense_undecided || v.dense_short) && params.tentative_min_inliers == 0) {
+      note(
+          id,
+          v.dense_undecided
+              ? "too little structure for the dense check, and no tentative placements"
+              : "dense overlap short of the full threshold, and no tentative placements");
       return false;
     }
-    if (v.num_inliers < min_inliers || tentative_only || v.dense_undecided) {
+    if (v.num_inliers < min_inliers || tentative_only || v.dense_undecided ||
+        v.dense_short) {
       if (!tentative)
         tentative = Tentative{id, v, "tentatively on " + what};
+      char overlap[80];
+      std::snprintf(overlap,
+                    sizeof overlap,
+                    "tentative, dense overlap %.2f short of the full threshold",
+                    v.dense_overlap);
       note(id,
            tentative_only      ? "tentative, found by the polar descriptor"
            : v.dense_undecided ? "tentative, too little structure for the dense check"
+           : v.dense_short     ? std::string(overlap)
                                : "tentative, " + std::to_string(v.num_inliers) +
-                                     " inliers < " + std::to_string(min_inliers));
+                                 " inliers < " + std::to_string(min_inliers));
       return false;
     }
     p.success = true;

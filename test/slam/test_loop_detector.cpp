@@ -240,6 +240,15 @@ TEST(LoopDetector, ParamsValidation)
   }
   {
     auto b = p;
+    b.tentative_dense_overlap = b.min_dense_overlap + 0.01;
+    expectInvalid(b, "tentative_dense_overlap");
+    b.tentative_dense_overlap = std::nan("");
+    expectInvalid(b, "tentative_dense_overlap");
+    b.tentative_dense_overlap = b.min_dense_overlap; // at most the full threshold
+    EXPECT_TRUE(b.isValid());
+  }
+  {
+    auto b = p;
     b.min_guess_inliers = 2;
     expectInvalid(b, "min_guess_inliers");
   }
@@ -558,7 +567,9 @@ TEST(LoopDetector, TooLittleStructureLeavesTheDenseCheckUndecided)
   // points where the full scan holds hundreds. Its features still match the
   // candidate's, but the share of those points that pair decides by default, and the
   // pair is refused; with min_dense_structure above their number it passes, undecided,
-  // at the features' pose.
+  // at the features' pose. The full scan 3 m from the key-frame pairs too little of its
+  // structure for the full threshold, and passes as short only where the caller asks
+  // for such pairs (tentative_dense_overlap).
   const auto& s = scene();
   const std::size_t frame = LoopScene::kLapFrames + 15; // between key-frames 2 and 3
   const KeyFrameId candidate = 2;                       // 3 m behind
@@ -610,7 +621,40 @@ TEST(LoopDetector, TooLittleStructureLeavesTheDenseCheckUndecided)
       with_floor.verify(*full_query, *s.database[3], s.truth(3, frame), tolerance);
   ASSERT_TRUE(full_3.accepted) << full_3.reason;
   EXPECT_FALSE(full_3.dense_undecided);
+  EXPECT_FALSE(full_3.dense_short);
   EXPECT_GE(full_3.dense_overlap, decides.min_dense_overlap);
+
+  // An overlap short of the full threshold passes with dense_short set where the
+  // caller asks for such pairs (tentative_dense_overlap at or below it), at the
+  // refinement's pose, and is refused where the caller's floor lies above it.
+  ASSERT_GT(full_2.dense_overlap, 0.05) << full_2.reason;
+  ASSERT_LT(full_2.dense_overlap, decides.min_dense_overlap) << full_2.reason;
+  LoopDetectorParams short_params = undecided_params;
+  short_params.tentative_dense_overlap = full_2.dense_overlap - 0.05;
+  const LoopVerification short_2 =
+      LoopDetector(short_params)
+          .verify(*full_query, *s.database[candidate], truth, tolerance);
+  std::printf(
+      "[ structure ] the full scan with key-frame 2, a tentative floor of %.2f: %s "
+      "(%.3f m, %.2f deg off)\n",
+      short_params.tentative_dense_overlap,
+      short_2.reason.c_str(),
+      translationError(short_2.T_candidate_query, truth),
+      rotationErrorDeg(short_2.T_candidate_query, truth));
+  ASSERT_TRUE(short_2.accepted) << short_2.reason;
+  EXPECT_TRUE(short_2.dense_short);
+  EXPECT_FALSE(short_2.dense_undecided);
+  EXPECT_DOUBLE_EQ(short_2.dense_overlap, full_2.dense_overlap);
+  EXPECT_LT(translationError(short_2.T_candidate_query, truth), 0.3);
+  EXPECT_LT(rotationErrorDeg(short_2.T_candidate_query, truth), 1.0);
+  short_params.tentative_dense_overlap =
+      0.5 * (full_2.dense_overlap + short_params.min_dense_overlap);
+  const LoopVerification above =
+      LoopDetector(short_params)
+          .verify(*full_query, *s.database[candidate], truth, tolerance);
+  EXPECT_FALSE(above.accepted);
+  EXPECT_FALSE(above.dense_short);
+  EXPECT_NE(above.reason.find("dense overlap"), std::string::npos) << above.reason;
 }
 
 TEST(LoopDetector, DriftedRevisitNeedsAppearanceRetrieval)

@@ -1253,6 +1253,9 @@ TEST(SessionLocalizer, APriorPlacesScansThatAppearanceDoesNotRetrieve)
   params.verification.min_appearance_score = 1000000;
   params.polar_candidates = 0; // the prior alone (PolarDescriptorPlaces... below)
   SessionLocalizer localizer(loadSession(m.dir.string()), params);
+  SessionLocalizerParams no_short_params = params; // every short overlap refused
+  no_short_params.verification.tentative_dense_overlap = -1.0;
+  SessionLocalizer no_short(loadSession(m.dir.string()), no_short_params);
   params.max_prior_candidates = 0;
   SessionLocalizer no_prior(loadSession(m.dir.string()), params);
 
@@ -1283,13 +1286,19 @@ TEST(SessionLocalizer, APriorPlacesScansThatAppearanceDoesNotRetrieve)
     const Placement w = localizer.place(scan, wrong);
     EXPECT_FALSE(w.success || w.tentative)
         << "frame " << i << " from a prior 60 m off: " << w.message;
-    // The prior's overlap threshold reaches the dense check.
+    // The prior's overlap threshold reaches the dense check: short of it, the
+    // placement is tentative (verification.tentative_dense_overlap), or refused where
+    // short overlaps are.
     if (p.success) {
       PlacementPrior strict = prior;
       strict.min_dense_overlap = 1.0;
       const Placement s = localizer.place(scan, strict);
       EXPECT_FALSE(s.success) << s.message;
-      EXPECT_NE(s.message.find("< 1.00"), std::string::npos) << s.message;
+      EXPECT_TRUE(s.tentative) << s.message;
+      EXPECT_DOUBLE_EQ(s.dense_overlap, p.dense_overlap) << s.message;
+      const Placement refused = no_short.place(scan, strict);
+      EXPECT_FALSE(refused.success || refused.tentative) << refused.message;
+      EXPECT_NE(refused.message.find("< 1.00"), std::string::npos) << refused.message;
     }
   }
   std::printf(
@@ -1693,6 +1702,15 @@ TEST(SessionLocalizer, ACandidatesNeighboursPlaceSparseScansThatItAloneCannot)
   EXPECT_EQ(placed[1], placed[0] + by_neighbours) << "the first pass is the plain one";
 }
 
+/// Frame \a i's key-frame (features and cloud) as SessionLocalizer::place makes it from
+/// the whole scan: a fresh front end's first frame.
+KeyFrame::Ptr
+placementQuery(const MappedLoop& m, std::size_t i)
+{
+  Odometry front_end(m.odometry);
+  return front_end.processFrame(simulateFrame(*m.sim, i), 0.0, 0).keyframe;
+}
+
 /// A scan whose features place it but which holds too little structure for the dense
 /// check (an open highway's: a guard rail, an embankment) is placed tentatively: another
 /// scan has to agree (MapLocalization). Without tentative placements it is not placed.
@@ -1709,15 +1727,13 @@ TEST(SessionLocalizer, AScanWithTooLittleStructurePlacesTentatively)
   int full_placed = 0, tentative = 0;
   for (std::size_t i = 160; i < 200; i += 4) {
     // The scan's features as the localizer makes them, from the whole scan ...
-    Odometry front_end(m.odometry);
-    const OdometryFrameResult first =
-        front_end.processFrame(simulateFrame(*m.sim, i), 0.0, 0);
-    ASSERT_TRUE(first.keyframe) << "frame " << i;
-    const Placement full = with_tentative->place(*first.keyframe);
+    const KeyFrame::Ptr query = placementQuery(m, i);
+    ASSERT_TRUE(query) << "frame " << i;
+    const Placement full = with_tentative->place(*query);
     full_placed += full.success ? 1 : 0;
     // ... and a cloud for the dense check with nothing more than 0.1 m above the road
     // (1.73 m below the sensor): no walls to pair.
-    KeyFrame bare = *first.keyframe;
+    KeyFrame bare = *query;
     auto low = std::make_shared<pcl::PointCloud<pcl::PointXYZI>>();
     for (const pcl::PointXYZI& q : bare.cloud->points)
       if (q.z < -1.63f)
@@ -1743,6 +1759,52 @@ TEST(SessionLocalizer, AScanWithTooLittleStructurePlacesTentatively)
               tentative);
   EXPECT_GE(full_placed, 9);
   EXPECT_GE(tentative, 7);
+}
+
+/// A candidate whose features place the scan but of whose structure too small a share
+/// pairs with the map (the scan sees roads the map never drove: a crossing, the map's
+/// edge) places the scan tentatively where the share reaches
+/// verification.tentative_dense_overlap, and not at all below it. Here the full
+/// threshold is raised above the shares a right placement reaches on this loop, so
+/// that every right candidate falls short of it.
+TEST(SessionLocalizer, AShortDenseOverlapPlacesTentatively)
+{
+  const MappedLoop m = mapLoop(false);
+  const auto localizerWith = [&](double tentative_overlap, int tentative_min_inliers) {
+    SessionLocalizerParams params;
+    params.verification.min_dense_overlap = 0.99;
+    params.verification.tentative_dense_overlap = tentative_overlap;
+    params.tentative_min_inliers = tentative_min_inliers;
+    return m.localizerWith(params);
+  };
+  const auto tentative_at_25 = localizerWith(0.25, 20);
+  const auto tentative_at_99 = localizerWith(-1.0, 20);
+  const auto no_tentatives = localizerWith(0.25, 0);
+  int tentative = 0;
+  for (std::size_t i = 160; i < 200; i += 8) {
+    const KeyFrame::Ptr query = placementQuery(m, i);
+    ASSERT_TRUE(query) << "frame " << i;
+    const Placement p = tentative_at_25->place(*query);
+    EXPECT_FALSE(p.success) << "frame " << i << ": " << p.message;
+    if (p.tentative) {
+      ++tentative;
+      EXPECT_GE(p.dense_overlap, 0.25) << p.message;
+      EXPECT_LT(p.dense_overlap, 0.99) << p.message;
+      const Pose3d gt = m.truth(i);
+      EXPECT_LT((p.T_world_lidar.translation() - gt.translation()).norm(), 0.5)
+          << "frame " << i << ": " << p.message;
+      EXPECT_LT(rotationErrorDeg(p.T_world_lidar, gt), 1.0) << "frame " << i;
+    }
+    for (const auto* refusing : {tentative_at_99.get(), no_tentatives.get()}) {
+      const Placement refused = refusing->place(*query);
+      EXPECT_FALSE(refused.success) << "frame " << i;
+      EXPECT_FALSE(refused.tentative) << "frame " << i << ": " << refused.message;
+    }
+  }
+  std::printf("simulated second pass: %d of 5 scans placed tentatively under a full "
+              "threshold of 0.99\n",
+              tentative);
+  EXPECT_GE(tentative, 4);
 }
 
 TEST(SessionLocalizer, RefusesBadParametersAndAnEmptySession)

@@ -168,6 +168,10 @@ struct LoopDetectorParams
   /// least this fraction must lie on a candidate plane of similar normal after the
   /// refinement ...
   double min_dense_overlap = 0.35;
+  /// A pair whose overlap falls short of min_dense_overlap but reaches this passes the
+  /// check with LoopVerification::dense_short set, for a caller that takes it as a
+  /// tentative result only (SessionLocalizer). Negative: none (the loop closure).
+  double tentative_dense_overlap = -1.0;
   /// ... within this point-to-plane distance.
   double dense_inlier_distance_m = 0.25;
   /// RMS point-to-plane distance of those paired structure points at most.
@@ -258,6 +262,9 @@ struct LoopVerification
   /// The query held too few structure points for the dense check to decide
   /// (LoopDetectorParams::min_dense_structure): passed on the features' checks alone.
   bool dense_undecided = false;
+  /// The overlap fell short of min_dense_overlap but reached
+  /// LoopDetectorParams::tentative_dense_overlap: passed, for the caller to weigh.
+  bool dense_short = false;
   std::string reason;         ///< why rejected, or a short summary when accepted
   // added beyond the contract
   int num_initial_inliers = 0;  ///< first RANSAC inliers among num_matches
