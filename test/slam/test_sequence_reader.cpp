@@ -393,6 +393,8 @@ TEST(ReadScan, NonFinitePointsAreDroppedAndCounted)
     const Cloud::Ptr read = readScan((dir / name).string(), &dropped);
     EXPECT_EQ(dropped, 3u) << name;
     EXPECT_TRUE(read->is_dense) << name;
+    EXPECT_EQ(read->width, 7u) << name;
+    EXPECT_EQ(read->height, 1u) << name;
     expectCloudsNear(finite, *read, 0.0f);
   }
 
