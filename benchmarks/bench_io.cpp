@@ -1,8 +1,8 @@
 /// \file bench_io.cpp
 /// \brief Reading scans as the tools do (SequenceReader::read: the file, its parsing and
 /// the point times), one scan per iteration, cycling through the real scans of
-/// ../shared/data: kitti-raw-22 (binary PCD, about 117k points, 1.9 MB a file) and
-/// kitti-raw-78 (KITTI .bin, about 120k points). The files stay in the page cache, as
+/// ../shared/data: kitti-raw-22 (binary PCD, about 118k points, 1.9 MB a file) and
+/// kitti-raw-78 (KITTI .bin, about 112k points). The files stay in the page cache, as
 /// for a drive read twice; the cost is the copy out of it, the parsing and the cloud's
 /// new memory. BM_ReadScan/env reads the folder named by PCL_RAST_BENCH_SCANS (any
 /// folder the tools take, a simulated one for instance) and is skipped without it.
