@@ -117,6 +117,25 @@ BM_ReadScan(benchmark::State& state)
 }
 BENCHMARK(BM_ReadScan)->Unit(benchmark::kMillisecond);
 
+/// The same for KITTI .bin scans: the real HDL-64 scans of kitti-raw-78 (float32 x y z
+/// reflectance, about 112 000 points).
+void
+BM_ReadScanKittiBin(benchmark::State& state)
+{
+  const std::string folder = std::string(PCL_RAST_SHARED_DATA_DIR) + "/kitti-raw-78";
+  if (!std::filesystem::exists(folder)) {
+    state.SkipWithError("../shared/data/kitti-raw-78 not found");
+    return;
+  }
+  const rast::SequenceReader reader(folder);
+  std::size_t i = 0;
+  for (auto _ : state) {
+    const rast::ScanFrame frame = reader.read(i++ % reader.size());
+    benchmark::DoNotOptimize(frame.cloud->size());
+  }
+}
+BENCHMARK(BM_ReadScanKittiBin)->Unit(benchmark::kMillisecond);
+
 /// The same for simulated raw sweeps written as the simulator writes them: binary PCD
 /// with a float32 time field, read with the points' times.
 void
